@@ -1,0 +1,1 @@
+"""terl-rt: the TERL encirclement world, its policies and tools, without torch."""

@@ -1,0 +1,1 @@
+"""Compact torch training package for TERL, its baselines and ablations."""
