@@ -1,0 +1,73 @@
+"""Benchmarks of the simulator (timings are reported, never asserted in tests)."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from terl_rt.scenario import Scenario
+from terl_rt.world import World
+
+SCALING_PURSUERS = (15, 80, 200, 400)
+"""Pursuer counts of the scaling table; evaders are a quarter of that."""
+
+
+@dataclass(frozen=True)
+class SimBenchmark:
+    """Speed of World.step with random pursuer actions and the default (APF) evaders."""
+
+    scenario: str
+    pursuers: int
+    evaders: int
+    num_envs: int
+    steps: int
+    """timed steps of the batch (each advances num_envs environments)."""
+    env_steps_per_s: float
+    """environment steps per second (steps * num_envs / time)."""
+    ms_per_step: float
+    """milliseconds per batch step."""
+    resets: int
+    """episodes restarted during the run (their time is not counted)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def bench_sim(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimBenchmark:
+    """Time `steps` batch steps (after `warmup` untimed ones); finished episodes restart untimed."""
+    world = World(scenario, num_envs=num_envs, seed=seed)
+    world.reset()
+    rng = np.random.default_rng(seed)
+    shape = (num_envs, scenario.pursuers)
+    elapsed, resets = 0.0, 0
+    for k in range(warmup + steps):
+        if world.done.any():
+            resets += int(world.done.sum())
+            world.reset(world.done)
+        actions = rng.integers(0, 9, shape)
+        start = time.perf_counter()
+        world.step(actions)
+        if k >= warmup:
+            elapsed += time.perf_counter() - start
+    return SimBenchmark(
+        scenario=scenario.name,
+        pursuers=scenario.pursuers,
+        evaders=scenario.evaders,
+        num_envs=num_envs,
+        steps=steps,
+        env_steps_per_s=steps * num_envs / elapsed,
+        ms_per_step=1e3 * elapsed / steps,
+        resets=resets,
+    )
+
+
+def scaling_scenario(pursuers: int) -> Scenario:
+    """large-80's world grown to `pursuers` pursuers and a quarter as many evaders, the
+    arena side scaled with sqrt(pursuers / 80) so that the robots' density stays put."""
+    side = round(220.0 * math.sqrt(pursuers / 80.0))
+    return Scenario.preset("large-80").replace(
+        name=f"scale-{pursuers}", pursuers=pursuers, evaders=max(1, pursuers // 4), arena=(float(side), float(side))
+    )

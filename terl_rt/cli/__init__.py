@@ -1,0 +1,1 @@
+"""The terl-rt command line (click): a thin layer over the Python API."""

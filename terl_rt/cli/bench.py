@@ -1,0 +1,62 @@
+"""`terl-rt bench ...`: speed benchmarks."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from terl_rt.bench import SCALING_PURSUERS, bench_sim, scaling_scenario
+from terl_rt.cli.options import json_option, scenario_option, seed_option
+
+steps_option = click.option(
+    "--steps", type=click.IntRange(min=1), default=500, show_default=True, help="Timed steps."
+)
+envs_option = click.option(
+    "--envs", "num_envs", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Environments stepped together (a batch).",
+)
+
+
+@click.group()
+def bench() -> None:
+    """Speed benchmarks (timings for reports, never pass/fail)."""
+
+
+@bench.command("sim")
+@scenario_option
+@steps_option
+@envs_option
+@seed_option
+@json_option
+def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
+    """Simulator speed: environment steps per second and ms per step, with random
+    pursuer actions and the paper's APF evaders (observations included)."""
+    result = bench_sim(scenario, steps, num_envs=num_envs, seed=seed)
+    if as_json:
+        click.echo(json.dumps(result.to_dict()))
+        return
+    click.echo(
+        f"{result.scenario}: {result.pursuers} pursuers, {result.evaders} evaders, {result.num_envs} env(s), "
+        f"{result.steps} steps\n"
+        f"  {result.env_steps_per_s:,.0f} env-steps/s, {result.ms_per_step:.3f} ms per step"
+    )
+
+
+@bench.command("scaling")
+@steps_option
+@json_option
+def scaling(steps: int, as_json: bool) -> None:
+    """How the cost of one step grows with the team: large-80's world with 15, 80, 200
+    and 400 pursuers (evaders a quarter of that, arena grown to keep the density)."""
+    rows = []
+    with click.progressbar(SCALING_PURSUERS, label="scaling", file=click.get_text_stream("stderr")) as counts:
+        for pursuers in counts:
+            rows.append(bench_sim(scaling_scenario(pursuers), steps).to_dict())
+    if as_json:
+        click.echo(json.dumps({"rows": rows}))
+        return
+    click.echo(f"{'pursuers':>9}{'evaders':>9}{'ms/step':>10}{'steps/s':>10}{'us/pursuer':>12}")
+    for row in rows:
+        per = 1e3 * row["ms_per_step"] / row["pursuers"]
+        click.echo(f"{row['pursuers']:>9}{row['evaders']:>9}{row['ms_per_step']:>10.3f}{row['env_steps_per_s']:>10.0f}{per:>12.1f}")

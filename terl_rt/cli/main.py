@@ -1,0 +1,47 @@
+"""The `terl-rt` command group: logging, error handling, subcommands."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from terl_rt.cli.bench import bench
+from terl_rt.cli.scenarios import scenarios
+from terl_rt.scenario import ScenarioError
+
+USER_ERRORS = (ScenarioError, FileNotFoundError, IsADirectoryError)
+"""Exceptions that mean bad input: one line on stderr and exit status 2 (traceback with --debug)."""
+
+
+class TerlGroup(click.Group):
+    """A click group that turns expected user mistakes into a one-line error, exit 2."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except USER_ERRORS as err:
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"Error: {err}", err=True)
+            ctx.exit(2)
+
+
+@click.group(cls=TerlGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--debug", is_flag=True, help="Show full tracebacks and debug logging.")
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.version_option(package_name="terl-rt")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
+    """terl-rt: simulate, evaluate and inspect TERL multi-target encirclement policies.
+
+    The world is the TERL paper's: pursuer robots encircle faster evaders in a 2-D sea
+    with obstacles and vortex currents. Every subcommand has its own --help.
+    """
+    level = logging.DEBUG if debug or verbose > 1 else logging.INFO if verbose else logging.WARNING
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    ctx.ensure_object(dict)["debug"] = debug
+
+
+cli.add_command(bench)
+cli.add_command(scenarios)

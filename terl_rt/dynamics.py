@@ -1,0 +1,96 @@
+"""Robot kinematics and vortex currents (world.md sections 2-3), pure functions over arrays.
+
+Letters: B environments, R robots (pursuers and evaders together), V vortex cores.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+def signed_circulation(gamma: np.ndarray, clockwise: np.ndarray) -> np.ndarray:
+    """Gamma / (2 pi), positive for clockwise cores: [B, V] m^2/s in, [B, V] out."""
+    return np.where(clockwise, gamma, -gamma) / TWO_PI
+
+
+def as_complex(xy: np.ndarray) -> np.ndarray:
+    """View points [..., 2] (float64, last axis contiguous) as complex x + iy [...], no copy."""
+    return xy.view(np.complex128)[..., 0]
+
+
+def as_pairs(z: np.ndarray) -> np.ndarray:
+    """View complex points [...] as float64 pairs [..., 2], no copy."""
+    return np.ascontiguousarray(z)[..., None].view(np.float64)
+
+
+def vortex_current(z: np.ndarray, core_z: np.ndarray, circulation: np.ndarray, core_radius: float) -> np.ndarray:
+    """Sum of the Rankine vortex currents at points, complex (vx + i vy).
+
+    z [B, R] complex m; core_z [B, V] complex m; circulation [B, V] from
+    `signed_circulation`; returns [B, R] complex m/s.
+
+    With `u` the unit vector from the point to the core at distance d, a core adds
+    `speed * Rot u`, speed = Gamma d / (2 pi r0^2) inside the core and
+    Gamma / (2 pi d) beyond. So speed * u = Gamma / (2 pi max(d^2, r0^2)) * (core - x)
+    needs no square root, and Rot = [[0, -1], [1, 0]] (clockwise) is a product
+    with i; the opposite rotation is folded into the sign of `circulation`.
+    """
+    diff = core_z[:, None, :] - z[:, :, None]  # [B, R, V]
+    dist2 = (diff * diff.conj()).real
+    weight = circulation[:, None, :] / np.maximum(dist2, core_radius * core_radius)
+    return 1j * (weight * diff).sum(axis=2)
+
+
+def integrate(
+    xy: np.ndarray,
+    theta: np.ndarray,
+    speed: np.ndarray,
+    acceleration: np.ndarray,
+    yaw_rate: np.ndarray,
+    moving: np.ndarray,
+    max_speed: np.ndarray,
+    drag: np.ndarray,
+    core_xy: np.ndarray,
+    circulation: np.ndarray,
+    core_radius: float,
+    dt: float,
+    substeps: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One decision step of `substeps` integration sub-steps of `dt` s (world.md section 2).
+
+    xy [B, R, 2] m; theta [B, R] rad; speed [B, R] m/s; acceleration [B, R] m/s^2 and
+    yaw_rate [B, R] rad/s held for the step; moving [B, R] bool (others stay put with
+    zero velocity); max_speed, drag [R] (m/s, 1/s); core_xy [B, V, 2] m and
+    circulation [B, V] as in `vortex_current`.
+    Returns new (xy [B, R, 2], theta [B, R], speed [B, R], velocity [B, R, 2] m/s of
+    the last sub-step, world frame).
+
+    Each sub-step: c = current(x); v = s (cos theta, sin theta) + c; x += v dt;
+    s = clip(s + (a - k s) dt, 0, s_max); theta = (theta + w dt) mod 2pi.
+    Heading and speed do not depend on position, so their sequences are computed
+    first and only the position update loops with the current.
+    """
+    # Heading and speed at the start of each sub-step: [S, B, R].
+    thetas = np.empty((substeps,) + theta.shape)
+    speeds = np.empty((substeps,) + speed.shape)
+    th, s = theta, speed
+    turn = yaw_rate * dt
+    for k in range(substeps):
+        thetas[k], speeds[k] = th, s
+        s = np.minimum(np.maximum(s + (acceleration - drag * s) * dt, 0.0), max_speed)
+        th = np.mod(th + turn, TWO_PI)
+    th = np.where(th >= TWO_PI, 0.0, th)  # mod of a tiny negative angle rounds to 2pi
+    steer = speeds * np.exp(1j * thetas)  # [S, B, R] complex m/s
+    step_scale = moving * dt  # [B, R]: 0 freezes a robot
+
+    z = as_complex(xy)
+    core_z = as_complex(core_xy)
+    has_cores = core_z.shape[1] > 0
+    for k in range(substeps):
+        velocity = steer[k] + vortex_current(z, core_z, circulation, core_radius) if has_cores else steer[k]
+        z = z + velocity * step_scale
+
+    velocity = np.where(moving, velocity, 0.0)
+    return as_pairs(z), np.where(moving, th, theta), np.where(moving, s, speed), as_pairs(velocity)

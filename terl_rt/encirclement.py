@@ -1,0 +1,109 @@
+"""Collisions (world.md section 6) and the encirclement test (section 7)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from terl_rt.dynamics import TWO_PI
+from terl_rt.geometry import Geometry, heading
+from terl_rt.params import WorldParams
+from terl_rt.state import WorldState
+
+
+def collisions(state: WorldState, geometry: Geometry, params: WorldParams) -> np.ndarray:
+    """[B, N] bool: active pursuers whose disc touches an active pursuer, an active
+    evader or an obstacle (centre distance minus both radii <= 0), after the move."""
+    num_pursuers = state.pursuer_active.shape[1]
+    r = params.robot_radius
+    active = state.pursuer_active
+    hit_pursuer = (
+        (geometry.pursuer_pursuer <= 2 * r) & active[:, None, :] & ~np.eye(num_pursuers, dtype=bool)
+    ).any(-1)
+    hit_evader = ((geometry.pursuer_evader <= 2 * r) & state.evader_active[:, None, :]).any(-1)
+    hit_obstacle = (geometry.pursuer_obstacle <= r + state.obstacle_r[:, None, :]).any(-1)
+    return active & (hit_pursuer | hit_evader | hit_obstacle)
+
+
+@dataclass(frozen=True)
+class Encirclement:
+    """Outcome of one step's encirclement test."""
+
+    evader_captured: np.ndarray
+    """[B, M] bool: evaders encircled this step."""
+    pursuer_target: np.ndarray
+    """[B, N] int64: the evader each pursuer encircled this step, -1 for none."""
+    ring_size: np.ndarray
+    """[B, N] int64: n_k, pursuers in that pursuer's ring (itself included), 0 for none."""
+    gap_std: np.ndarray
+    """[B, N] float64 rad: standard deviation of the ring's bearing gaps, 0 for none."""
+
+
+def ring_gaps(bearings: np.ndarray, member: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cyclic gaps between sorted bearings of ring members.
+
+    bearings [C, N] rad in [0, 2pi); member [C, N] bool, at least 1 member a row.
+    Returns (max gap [C], min gap [C], std of gaps [C], count [C]) in rad.
+    """
+    count = member.sum(-1)
+    ordered = np.sort(np.where(member, bearings, np.inf), axis=-1)
+    gaps = np.diff(ordered, axis=-1)  # [C, N-1]; only the first count-1 are real
+    real = np.arange(gaps.shape[-1]) < (count - 1)[:, None]
+    rows = np.arange(len(count))
+    wrap = ordered[:, 0] + TWO_PI - ordered[rows, count - 1]
+    gaps = np.concatenate([np.where(real, gaps, np.nan), wrap[:, None]], -1)
+    return np.nanmax(gaps, -1), np.nanmin(gaps, -1), np.nanstd(gaps, -1), count
+
+
+def encircle(state: WorldState, geometry: Geometry, params: WorldParams) -> Encirclement:
+    """The encirclement test of every active pursuer p against every active evader j.
+
+    1. |p - j| <= d_encircle; 2. at least 2 other active pursuers that p perceives are
+    strictly within d_encircle of j; 3. the bearings around j of those and p leave
+    cyclic gaps with max <= psi and max <= kappa * min. A pursuer makes at most one
+    capture a step (the first evader in index order that passes); every evader
+    chosen by some pursuer is encircled.
+    """
+    p = params
+    num_envs, num_pursuers = state.pursuer_active.shape
+    num_evaders = state.evader_active.shape[1]
+    active = state.pursuer_active
+    live = active[:, :, None] & state.evader_active[:, None, :]  # [B, N, M]
+    close = (geometry.pursuer_evader <= p.d_encircle) & live
+    strictly_close = (geometry.pursuer_evader < p.d_encircle) & live
+    perceives = (
+        (geometry.pursuer_pursuer <= p.perception_radius + p.robot_radius)
+        & active[:, None, :] & active[:, :, None]
+        & ~np.eye(num_pursuers, dtype=bool)
+    )
+    helpers = np.matmul(perceives.astype(np.float64), strictly_close.astype(np.float64))  # [B, N, M]
+    env, pursuer, evader = np.nonzero(close & (helpers >= 2))
+
+    target = np.full((num_envs, num_pursuers), -1, np.int64)
+    ring_size = np.zeros((num_envs, num_pursuers), np.int64)
+    gap_std = np.zeros((num_envs, num_pursuers))
+    captured = np.zeros((num_envs, num_evaders), bool)
+    if len(env) == 0:
+        return Encirclement(captured, target, ring_size, gap_std)
+
+    # One row per candidate (b, p, j): the ring is p plus the perceived helpers.
+    member = perceives[env, pursuer] & strictly_close[env, :, evader]  # [C, N]
+    member[np.arange(len(env)), pursuer] = True
+    offset = geometry.pursuer_z[env] - geometry.evader_z[env, evader][:, None]  # [C, N] complex
+    bearings = heading(offset)
+    max_gap, min_gap, std, count = ring_gaps(bearings, member)
+    passed = (max_gap <= p.max_gap) & (max_gap <= p.gap_ratio * min_gap)
+
+    # Candidates come in (b, p, j) lexicographic order: the first passing j of each
+    # pursuer is its capture.
+    env, pursuer, evader = env[passed], pursuer[passed], evader[passed]
+    std, count = std[passed], count[passed]
+    first = np.ones(len(env), bool)
+    first[1:] = (env[1:] != env[:-1]) | (pursuer[1:] != pursuer[:-1])
+    env, pursuer, evader = env[first], pursuer[first], evader[first]
+    target[env, pursuer] = evader
+    ring_size[env, pursuer] = count[first]
+    gap_std[env, pursuer] = std[first]
+    captured[env, evader] = True
+    return Encirclement(captured, target, ring_size, gap_std)

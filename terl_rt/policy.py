@@ -1,0 +1,343 @@
+"""Exported ONNX policies: load one, check it against the contract, act with it.
+
+The contract (policy.md section 3) is checked in `terl_rt.contract`; this module
+opens the file with onnxruntime, refuses models that break the contract, checks
+observations before they reach the model, and runs every row in one call.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import logging
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from terl_rt.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.contract import (
+    INPUTS,
+    META_MODEL,
+    ContractError,
+    ContractReport,
+    TensorInfo,
+    check_model,
+)
+from terl_rt.observation import Observation
+
+__all__ = [
+    "ContractError",
+    "ContractReport",
+    "OnnxPolicy",
+    "PolicyOutput",
+    "action_to_control",
+    "check_contract",
+    "describe_session",
+    "observation_inputs",
+    "open_session",
+    "session_options",
+]
+
+logger = logging.getLogger(__name__)
+
+_FEATURES = {spec.name: spec.dims[-1] for spec in INPUTS if spec.name != "mask"}
+"""Feature width of each token group (ego, teammates, evaders, obstacles)."""
+
+
+# --- opening a model ---------------------------------------------------------
+
+
+def _read_policy_file(path: Path) -> bytes:
+    """The file's bytes; FileNotFoundError / IsADirectoryError name the path."""
+    if not path.exists():
+        raise FileNotFoundError(errno.ENOENT, "no policy file at this path", str(path))
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "expected an ONNX policy file, got a directory", str(path))
+    return path.read_bytes()
+
+
+def _check_threads(threads: int | None) -> None:
+    if threads is None:
+        return
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+
+
+def session_options(threads: int | None = None) -> ort.SessionOptions:
+    """Deterministic CPU session options: `threads` intra-op threads (None: onnxruntime's
+    default), one inter-op thread, sequential execution."""
+    _check_threads(threads)
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.use_deterministic_compute = True
+    return options
+
+
+def _session_from_bytes(model: bytes, path: Path, threads: int | None) -> ort.InferenceSession:
+    options = session_options(threads)
+    try:
+        return ort.InferenceSession(model, sess_options=options, providers=["CPUExecutionProvider"])
+    except Exception as error:  # onnxruntime raises its own types for every kind of bad file
+        raise ContractError(f"{path} is not a readable ONNX model: {error}") from error
+
+
+def open_session(path: str | os.PathLike, threads: int | None = None) -> ort.InferenceSession:
+    """An onnxruntime CPU session on the file at `path`, without the contract check.
+
+    Raises FileNotFoundError for a missing file and ContractError for a file
+    onnxruntime cannot load.
+    """
+    path = Path(path)
+    return _session_from_bytes(_read_policy_file(path), path, threads)
+
+
+def describe_session(
+    session: ort.InferenceSession,
+) -> tuple[tuple[TensorInfo, ...], tuple[TensorInfo, ...], dict[str, str]]:
+    """A session's declared inputs, outputs and metadata_props."""
+    inputs = tuple(TensorInfo.from_node_arg(arg) for arg in session.get_inputs())
+    outputs = tuple(TensorInfo.from_node_arg(arg) for arg in session.get_outputs())
+    metadata = dict(session.get_modelmeta().custom_metadata_map)
+    return inputs, outputs, metadata
+
+
+def check_contract(
+    source: str | os.PathLike | ort.InferenceSession, *, strict: bool = False
+) -> ContractReport:
+    """Check a model file or an open session against the contract, version 1.
+
+    Returns the report (every check with pass / warn / fail). With `strict`,
+    raises ContractError carrying the first refusal's message instead.
+    A path that cannot be loaded raises FileNotFoundError or ContractError.
+    """
+    session = source if isinstance(source, ort.InferenceSession) else open_session(source)
+    report = check_model(*describe_session(session))
+    if strict:
+        report.raise_for_refusal()
+    return report
+
+
+# --- observations --------------------------------------------------------------
+
+
+def _row_label(flat_row: int, leading: tuple[int, ...]) -> str:
+    if not leading:
+        return "the single row"
+    if len(leading) == 1:
+        return f"row {flat_row}"
+    return f"row {tuple(int(i) for i in np.unravel_index(flat_row, leading))}"
+
+
+def _features(name: str, value) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":
+        raise ValueError(f"{name} has dtype {array.dtype}; the contract needs float32 features")
+    return array.astype(np.float32, copy=False)
+
+
+def _check_finite(name: str, array: np.ndarray, leading: tuple[int, ...]) -> None:
+    finite = np.isfinite(array)
+    if finite.all():
+        return
+    rows = math.prod(leading)
+    flat_row = int(np.flatnonzero(~finite.reshape(rows, -1).all(axis=1))[0])
+    row = array.reshape((rows,) + array.shape[len(leading):])[flat_row]
+    inner = tuple(int(i) for i in np.argwhere(~np.isfinite(row))[0])
+    # Position inside the row: the feature for ego, slot and feature for token groups.
+    where = f"feature {inner[0]}" if len(inner) == 1 else f"slot {inner[0]}, feature {inner[1]}"
+    raise ValueError(
+        f"{name} has a non-finite value ({row[inner]}) in {_row_label(flat_row, leading)} ({where}); "
+        "the observation must be finite everywhere, padding included"
+    )
+
+
+def observation_inputs(
+    observation: Observation | Mapping[str, np.ndarray],
+) -> tuple[dict[str, np.ndarray], tuple[int, ...]]:
+    """Check an observation and return the contract inputs with their leading shape.
+
+    `observation` is an `Observation` or a mapping with its `as_inputs()` keys, with
+    any leading shape `...`: ego [..., 4], teammates [..., P, 7], evaders [..., E, 7],
+    obstacles [..., O, 5] (numbers, converted to float32, all finite) and mask
+    [..., 1 + P + E + O] bool. Raises ValueError naming the group at fault.
+    """
+    values = observation.as_inputs() if isinstance(observation, Observation) else observation
+    missing = [spec.name for spec in INPUTS if spec.name not in values]
+    if missing:
+        raise ValueError(f"observation lacks {', '.join(missing)}")
+
+    inputs = {name: _features(name, values[name]) for name in _FEATURES}
+    ego = inputs["ego"]
+    if ego.ndim < 1 or ego.shape[-1] != _FEATURES["ego"]:
+        raise ValueError(f"ego has shape {ego.shape}, expected [..., {_FEATURES['ego']}]")
+    leading = ego.shape[:-1]
+    for name in ("teammates", "evaders", "obstacles"):
+        array, width = inputs[name], _FEATURES[name]
+        if array.ndim < 2 or array.shape[-1] != width:
+            raise ValueError(f"{name} has shape {array.shape}, expected [..., slots, {width}]")
+        if array.shape[:-2] != leading:
+            raise ValueError(
+                f"{name} has leading shape {array.shape[:-2]} but ego has {leading}; "
+                "every group needs the same rows"
+            )
+
+    mask = np.asarray(values["mask"])
+    if mask.dtype != np.bool_:
+        raise ValueError(f"mask has dtype {mask.dtype}, the contract says bool (true = present)")
+    tokens = 1 + sum(inputs[name].shape[-2] for name in ("teammates", "evaders", "obstacles"))
+    if mask.shape != leading + (tokens,):
+        raise ValueError(
+            f"mask has shape {mask.shape}, expected {leading + (tokens,)}: "
+            "[..., 1 + P + E + O] with P, E, O the slots of teammates, evaders, obstacles"
+        )
+    inputs["mask"] = mask
+
+    if math.prod(leading) > 0:
+        for name in _FEATURES:
+            _check_finite(name, inputs[name], leading)
+    return inputs, leading
+
+
+# --- acting ----------------------------------------------------------------------
+
+
+def action_to_control(actions) -> np.ndarray:
+    """Pursuer action indices [...] (int, 0..8) -> controls [..., 2] float64:
+    (acceleration m/s^2, yaw rate rad/s), by the pursuer action table."""
+    actions = np.asarray(actions)
+    if actions.dtype.kind not in "iu":
+        raise ValueError(f"actions have dtype {actions.dtype}, expected integer action indices")
+    if actions.size and (actions.min() < 0 or actions.max() >= NUM_PURSUER_ACTIONS):
+        raise ValueError(
+            f"actions must lie in [0, {NUM_PURSUER_ACTIONS - 1}], got values in "
+            f"[{actions.min()}, {actions.max()}]"
+        )
+    return PURSUER_ACTIONS[actions]
+
+
+@dataclass(frozen=True)
+class PolicyOutput:
+    """What a policy computes for observations with leading shape `...`."""
+
+    q_values: np.ndarray
+    """[..., 9] float32: expected return of each pursuer action."""
+    target_weights: np.ndarray | None
+    """[..., E] float32 target preference per evader slot (0 on padding), or None
+    for models without target selection."""
+    actions: np.ndarray
+    """[...] int64: argmax of q_values (the first one on ties)."""
+
+
+class OnnxPolicy:
+    """One exported policy file, checked against the contract when loaded.
+
+    `threads` sets onnxruntime's intra-op threads (None: its default); execution
+    is sequential and deterministic. Raises FileNotFoundError for a missing file
+    and ContractError for an unreadable file or one that breaks the contract.
+    """
+
+    def __init__(self, path: str | os.PathLike, threads: int | None = None):
+        self._path = Path(path)
+        model = _read_policy_file(self._path)
+        self._sha256 = hashlib.sha256(model).hexdigest()
+        self._session = _session_from_bytes(model, self._path, threads)
+        self._report = check_contract(self._session)
+        self._report.raise_for_refusal()
+        for warning in self._report.warnings:
+            logger.warning("%s: %s", self._path, warning.detail)
+        self._output_names = ["q_values"]
+        if self._report.has_target_weights:
+            self._output_names.append("target_weights")
+
+    def __repr__(self) -> str:
+        return f"OnnxPolicy({str(self._path)!r}, name={self.name!r}, sha256={self._sha256[:12]}...)"
+
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def name(self) -> str:
+        """The model name from metadata `terl.model`."""
+        return self._report.metadata[META_MODEL]
+
+    @property
+    def metadata(self) -> dict[str, str]:
+        """All metadata_props (a copy)."""
+        return dict(self._report.metadata)
+
+    @property
+    def has_target_weights(self) -> bool:
+        return self._report.has_target_weights
+
+    @property
+    def sha256(self) -> str:
+        """Hex SHA-256 of the file as loaded."""
+        return self._sha256
+
+    @property
+    def report(self) -> ContractReport:
+        """The contract check run at load (warnings included)."""
+        return self._report
+
+    def evaluate(self, observation: Observation | Mapping[str, np.ndarray]) -> PolicyOutput:
+        """Q-values, target weights and greedy actions for every row of `observation`.
+
+        All rows go to onnxruntime in one call, leading dims flattened and restored.
+        Raises ValueError for an observation that breaks the layout (see
+        `observation_inputs`).
+        """
+        inputs, leading = observation_inputs(observation)
+        rows = math.prod(leading)
+        num_evaders = inputs["evaders"].shape[-2]
+        if rows == 0:
+            return PolicyOutput(
+                q_values=np.zeros(leading + (NUM_PURSUER_ACTIONS,), np.float32),
+                target_weights=(
+                    np.zeros(leading + (num_evaders,), np.float32) if self.has_target_weights else None
+                ),
+                actions=np.zeros(leading, np.int64),
+            )
+
+        feed = {
+            name: np.ascontiguousarray(array.reshape((rows,) + array.shape[len(leading):]))
+            for name, array in inputs.items()
+        }
+        results = self._session.run(self._output_names, feed)
+        q_values = self._checked_output("q_values", results[0], (rows, NUM_PURSUER_ACTIONS))
+        target_weights = None
+        if self.has_target_weights:
+            target_weights = self._checked_output("target_weights", results[1], (rows, num_evaders))
+            target_weights = target_weights.reshape(leading + (num_evaders,))
+        actions = np.argmax(q_values, axis=-1).astype(np.int64)
+        return PolicyOutput(
+            q_values=q_values.reshape(leading + (NUM_PURSUER_ACTIONS,)),
+            target_weights=target_weights,
+            actions=actions.reshape(leading),
+        )
+
+    def act(self, observation: Observation | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Greedy pursuer actions [...] int64 for observations with leading shape `...`."""
+        return self.evaluate(observation).actions
+
+    @staticmethod
+    def action_to_control(actions) -> np.ndarray:
+        """Action indices [...] -> (acceleration m/s^2, yaw rate rad/s) [..., 2]."""
+        return action_to_control(actions)
+
+    def _checked_output(self, name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        # Declared shapes were checked at load; dims left unknown there are checked here.
+        if value.shape != shape or value.dtype != np.float32:
+            raise ContractError(
+                f"{self._path}: output '{name}' came back as {value.dtype} {list(value.shape)}, "
+                f"the contract says float32 {list(shape)}"
+            )
+        return value

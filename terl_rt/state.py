@@ -1,0 +1,67 @@
+"""The world state: a dataclass of arrays, environments first ([B, ...]).
+
+Letters: B environments, N pursuers, M evaders, O obstacles, V vortex cores.
+Units: positions in m, headings in rad in [0, 2pi), speeds in m/s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class WorldState:
+    """Every array of a batch of B worlds of one scenario."""
+
+    pursuer_xy: np.ndarray
+    """[B, N, 2] float64, m."""
+    pursuer_theta: np.ndarray
+    """[B, N] float64, rad in [0, 2pi)."""
+    pursuer_speed: np.ndarray
+    """[B, N] float64, forward speed s in m/s."""
+    pursuer_vel: np.ndarray
+    """[B, N, 2] float64, m/s: ground velocity (steer + current) of the last sub-step, world frame."""
+    pursuer_active: np.ndarray
+    """[B, N] bool: not collided."""
+    evader_xy: np.ndarray
+    """[B, M, 2] float64, m."""
+    evader_theta: np.ndarray
+    """[B, M] float64, rad in [0, 2pi)."""
+    evader_speed: np.ndarray
+    """[B, M] float64, m/s."""
+    evader_vel: np.ndarray
+    """[B, M, 2] float64, m/s, world frame."""
+    evader_active: np.ndarray
+    """[B, M] bool: not encircled yet."""
+    obstacle_xy: np.ndarray
+    """[B, O, 2] float64, m."""
+    obstacle_r: np.ndarray
+    """[B, O] float64, m."""
+    vortex_xy: np.ndarray
+    """[B, V, 2] float64, m: core centres."""
+    vortex_gamma: np.ndarray
+    """[B, V] float64, m^2/s: circulation Gamma >= 0."""
+    vortex_clockwise: np.ndarray
+    """[B, V] bool: rotation direction."""
+    steps: np.ndarray
+    """[B] int64: decision steps taken in the episode."""
+
+    @property
+    def num_envs(self) -> int:
+        return self.pursuer_xy.shape[0]
+
+    @property
+    def pursuer_collided(self) -> np.ndarray:
+        """[B, N] bool: collided pursuers (the only way a pursuer is deactivated)."""
+        return ~self.pursuer_active
+
+    def copy(self) -> WorldState:
+        return WorldState(**{f.name: getattr(self, f.name).copy() for f in dataclasses.fields(self)})
+
+    def assign(self, env_mask: np.ndarray, other: WorldState) -> None:
+        """Overwrite the environments selected by `env_mask` [B] bool with `other`'s rows."""
+        for f in dataclasses.fields(self):
+            getattr(self, f.name)[env_mask] = getattr(other, f.name)[env_mask]

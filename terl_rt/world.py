@@ -1,0 +1,242 @@
+"""A batch of B independent worlds of one scenario, stepped together (training throughput).
+
+Letters: B environments, N pursuers, M evaders. The step is a few named phases:
+evaders decide, everyone moves, collisions, encirclement, rewards, episode end,
+observations. Every phase is array operations over all robots of all environments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from terl_rt.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.dynamics import as_complex, as_pairs, integrate, signed_circulation, vortex_current
+from terl_rt.encirclement import collisions, encircle
+from terl_rt.evader import EvaderPolicy, PublishedAPFEvader
+from terl_rt.geometry import Geometry
+from terl_rt.metrics import EpisodeMetrics, episode_metrics
+from terl_rt.observation import Observation, pursuer_observations
+from terl_rt.reset import Placement, place
+from terl_rt.reward import reward_terms
+from terl_rt.scenario import Scenario
+from terl_rt.state import WorldState
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one step of a batch did. Shapes [B, ...]."""
+
+    reward: np.ndarray
+    """[B, N] float64: total reward of each pursuer (0 for those inactive at the step start)."""
+    reward_terms: np.ndarray
+    """[B, N, 7] float64: the terms, in terl_rt.reward.REWARD_TERMS order."""
+    acted: np.ndarray
+    """[B, N] bool: pursuers active at the step start (they acted and get a reward)."""
+    collided: np.ndarray
+    """[B, N] bool: pursuers that collided in this step."""
+    captured: np.ndarray
+    """[B, M] bool: evaders encircled in this step."""
+    pursuer_target: np.ndarray
+    """[B, N] int64: evader each pursuer encircled in this step, -1 for none."""
+    evader_actions: np.ndarray
+    """[B, M] int64: the evaders' action indices."""
+    terminated: np.ndarray
+    """[B] bool: the task ended (all evaders encircled, or too few pursuers left)."""
+    truncated: np.ndarray
+    """[B] bool: the step limit was reached first."""
+    success: np.ndarray
+    """[B] bool: every evader is encircled."""
+
+
+def _initial_state(scenario: Scenario, placements: list[Placement]) -> WorldState:
+    """Stack per-environment placements into a state; velocities are set by the caller."""
+    def stack(group: str) -> np.ndarray:
+        return np.stack([getattr(pl, group) for pl in placements])
+
+    pursuers, evaders = stack("pursuers"), stack("evaders")
+    obstacles, vortices = stack("obstacles"), stack("vortices")
+    num_envs = len(placements)
+    return WorldState(
+        pursuer_xy=pursuers[..., :2].copy(),
+        pursuer_theta=np.mod(pursuers[..., 2], 2 * np.pi),
+        pursuer_speed=pursuers[..., 3].copy(),
+        pursuer_vel=np.zeros(pursuers[..., :2].shape),
+        pursuer_active=np.ones(pursuers.shape[:2], bool),
+        evader_xy=evaders[..., :2].copy(),
+        evader_theta=np.mod(evaders[..., 2], 2 * np.pi),
+        evader_speed=evaders[..., 3].copy(),
+        evader_vel=np.zeros(evaders[..., :2].shape),
+        evader_active=np.ones(evaders.shape[:2], bool),
+        obstacle_xy=obstacles[..., :2].copy(),
+        obstacle_r=obstacles[..., 2].copy(),
+        vortex_xy=vortices[..., :2].copy(),
+        vortex_gamma=vortices[..., 2].copy(),
+        vortex_clockwise=vortices[..., 3] > 0.5,
+        steps=np.zeros(num_envs, np.int64),
+    )
+
+
+def _steer_velocity(xy: np.ndarray, theta: np.ndarray, speed: np.ndarray, state: WorldState, core_radius: float) -> np.ndarray:
+    """Ground velocity at rest of the world: steer s (cos, sin) plus the current, [B, R, 2] m/s."""
+    circulation = signed_circulation(state.vortex_gamma, state.vortex_clockwise)
+    current = vortex_current(as_complex(xy), as_complex(state.vortex_xy), circulation, core_radius)
+    return as_pairs(speed * np.exp(1j * theta) + current)
+
+
+class World:
+    """B worlds of one scenario. Each owns a random generator spawned from `seed`.
+
+    Environment b draws its episodes from `SeedSequence(seed).spawn(B)[b]`, so a
+    `Simulator(scenario, seed)` replays environment 0 of any batch with that seed.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        num_envs: int = 1,
+        seed: int = 0,
+        evader_policy: EvaderPolicy | None = None,
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.scenario = scenario
+        self.params = scenario.params
+        self.num_envs = num_envs
+        self.evader_policy = evader_policy if evader_policy is not None else PublishedAPFEvader()
+        self._seed(seed)
+        p, n, m = self.params, scenario.pursuers, scenario.evaders
+        self._max_speed = np.concatenate([np.full(n, p.pursuer_max_speed), np.full(m, p.evader_max_speed)])
+        self._drag = np.concatenate([np.full(n, p.pursuer_drag), np.full(m, p.evader_drag)])
+        self.state: WorldState | None = None
+        self.geometry: Geometry | None = None
+        self.done = np.ones(num_envs, bool)
+        """[B] bool: environments whose episode ended (or never started); reset them."""
+
+    def _seed(self, seed: int) -> None:
+        children = np.random.SeedSequence(seed).spawn(self.num_envs)
+        self._rngs = [np.random.default_rng(child) for child in children]
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, env_mask: np.ndarray | None = None, seed: int | None = None) -> Observation:
+        """Start new episodes in the environments of `env_mask` ([B] bool; None = all).
+
+        `seed` re-seeds every environment's generator first (only with env_mask None).
+        Returns the observations of every pursuer of every environment, [B, N, ...].
+        """
+        if seed is not None:
+            if env_mask is not None:
+                raise ValueError("reset: seed re-seeds every environment; pass env_mask=None with it")
+            self._seed(seed)
+        mask = np.ones(self.num_envs, bool) if env_mask is None else np.asarray(env_mask, bool)
+        if mask.shape != (self.num_envs,):
+            raise ValueError(f"reset: env_mask must have shape ({self.num_envs},), got {mask.shape}")
+        if self.state is None and not mask.all():
+            raise ValueError("reset: the first reset must start every environment (env_mask=None)")
+
+        init = self.scenario.initial_state
+        placements = [
+            (init if init is not None else place(self.scenario, self._rngs[b])) if mask[b] else None
+            for b in range(self.num_envs)
+        ]
+        filler = next(pl for pl in placements if pl is not None)
+        fresh = _initial_state(self.scenario, [pl if pl is not None else filler for pl in placements])
+        xy = np.concatenate([fresh.pursuer_xy, fresh.evader_xy], 1)
+        theta = np.concatenate([fresh.pursuer_theta, fresh.evader_theta], 1)
+        speed = np.concatenate([fresh.pursuer_speed, fresh.evader_speed], 1)
+        velocity = _steer_velocity(xy, theta, speed, fresh, self.params.vortex_core_radius)
+        n = self.scenario.pursuers
+        fresh.pursuer_vel, fresh.evader_vel = velocity[:, :n].copy(), velocity[:, n:].copy()
+        if self.state is None:
+            self.state = fresh
+        else:
+            self.state.assign(mask, fresh)
+        self.done[mask] = False
+        self.geometry = Geometry.of(self.state)
+        return pursuer_observations(self.state, self.geometry, self.params, self.scenario.evader_slots)
+
+    # ------------------------------------------------------------------ step
+    def step(self, pursuer_actions: np.ndarray) -> tuple[Observation, StepResult]:
+        """Advance every environment one decision step (0.5 s).
+
+        pursuer_actions [B, N] int in [0, 9) (ignored for inactive pursuers).
+        Returns the observations [B, N, ...] after the step and what happened.
+        """
+        state, geometry, p, scenario = self.state, self.geometry, self.params, self.scenario
+        if state is None:
+            raise RuntimeError("step: call reset() first")
+        if self.done.any():
+            raise RuntimeError(
+                f"step: the episodes of environments {np.flatnonzero(self.done).tolist()} ended; reset them first"
+            )
+        actions = _check_actions(pursuer_actions, state.pursuer_active)
+        acted = state.pursuer_active.copy()
+        evader_was_active = state.evader_active.copy()
+
+        # Evaders decide from the world as it is (geometry cached from the last step).
+        evader_actions = np.asarray(self.evader_policy.act(state, geometry, p, scenario.arena), np.int64)
+        if evader_actions.shape != evader_was_active.shape:
+            raise ValueError(f"evader policy returned shape {evader_actions.shape}, expected {evader_was_active.shape}")
+
+        # Everyone moves (pursuers and evaders integrated together).
+        n = scenario.pursuers
+        control = np.concatenate([PURSUER_ACTIONS[actions], EVADER_ACTIONS[evader_actions]], 1)  # [B, N+M, 2]
+        xy, theta, speed, velocity = integrate(
+            np.concatenate([state.pursuer_xy, state.evader_xy], 1),
+            np.concatenate([state.pursuer_theta, state.evader_theta], 1),
+            np.concatenate([state.pursuer_speed, state.evader_speed], 1),
+            control[..., 0], control[..., 1],
+            np.concatenate([acted, evader_was_active], 1),
+            self._max_speed, self._drag,
+            state.vortex_xy, signed_circulation(state.vortex_gamma, state.vortex_clockwise),
+            p.vortex_core_radius, p.dt, p.substeps,
+        )
+        state.pursuer_xy, state.evader_xy = xy[:, :n], xy[:, n:]
+        state.pursuer_theta, state.evader_theta = theta[:, :n], theta[:, n:]
+        state.pursuer_speed, state.evader_speed = speed[:, :n], speed[:, n:]
+        state.pursuer_vel, state.evader_vel = velocity[:, :n], velocity[:, n:]
+        self.geometry = geometry = Geometry.of(state)
+
+        # Collisions, then the encirclement test among the pursuers left.
+        collided = collisions(state, geometry, p)
+        state.pursuer_active = acted & ~collided
+        ring = encircle(state, geometry, p)
+        terms = reward_terms(
+            state.pursuer_xy, acted, state.pursuer_active, collided, evader_was_active,
+            state.obstacle_r, geometry, ring, p, scenario.arena,
+        )
+        state.evader_active = evader_was_active & ~ring.evader_captured
+        state.steps += 1
+
+        # Episode end.
+        success = ~state.evader_active.any(-1)
+        terminated = success | (state.pursuer_active.sum(-1) < p.min_active_pursuers)
+        truncated = ~terminated & (state.steps >= scenario.max_steps)
+        self.done = terminated | truncated
+
+        observation = pursuer_observations(state, geometry, p, scenario.evader_slots)
+        return observation, StepResult(
+            reward=terms.sum(-1), reward_terms=terms, acted=acted, collided=collided,
+            captured=ring.evader_captured, pursuer_target=ring.pursuer_target,
+            evader_actions=evader_actions, terminated=terminated, truncated=truncated, success=success,
+        )
+
+    def metrics(self, env: int = 0) -> EpisodeMetrics:
+        """Metrics of environment `env`'s episode so far."""
+        if self.state is None:
+            raise RuntimeError("metrics: call reset() first")
+        return episode_metrics(self.state, env, self.params)
+
+
+def _check_actions(actions: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """Validate pursuer actions [B, N] integer indices; inactive pursuers' entries are ignored."""
+    array = np.asarray(actions)
+    if array.shape != active.shape:
+        raise ValueError(f"pursuer_actions: expected shape {active.shape} (one per pursuer), got {array.shape}")
+    if not np.issubdtype(array.dtype, np.integer):
+        raise ValueError(f"pursuer_actions: expected integer action indices, got dtype {array.dtype}")
+    array = np.where(active, array, 0)
+    if array.min() < 0 or array.max() >= NUM_PURSUER_ACTIONS:
+        raise ValueError(f"pursuer_actions: indices must lie in [0, {NUM_PURSUER_ACTIONS}), got {array[active].tolist()}")
+    return array

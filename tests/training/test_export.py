@@ -1,0 +1,119 @@
+"""The ONNX export meets the exported-policy contract (policy.md section 3) and matches torch."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+
+from terl_rt.actions import PURSUER_ACTIONS
+from training.export import ParityError, check_parity, example_inputs, export_onnx, read_metadata
+from training.networks import build_network, network_classes
+
+ALL_MODELS = sorted(network_classes())
+CALLER_METADATA = {"terl.training_steps": "1000", "terl.trained_on": "small"}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """name -> (small eval-mode model, path of its exported policy), exported once per module."""
+    folder = tmp_path_factory.mktemp("policies")
+    policies = {}
+    for name in ALL_MODELS:
+        torch.manual_seed(0)
+        model = build_network(name, hidden=32, layers=2, heads=4).eval()
+        policies[name] = (model, export_onnx(model, folder / f"{name}.onnx", CALLER_METADATA))
+    return policies
+
+
+@pytest.mark.parametrize("name", ALL_MODELS)
+def test_exported_policy_matches_torch_on_random_and_masked_inputs(exported, name):
+    model, path = exported[name]
+    assert check_parity(model, path) <= 1e-4
+
+
+@pytest.mark.parametrize("name", ["terl", "terl-no-re", "iqn"])
+@pytest.mark.parametrize("teammates, evaders, obstacles", [(5, 8, 5), (2, 14, 7), (6, 20, 1)])
+def test_exported_policy_runs_with_any_slot_counts(exported, name, teammates, evaders, obstacles):
+    _, path = exported[name]
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    feed = {
+        key: value.numpy()
+        for key, value in example_inputs(7, teammates, evaders, obstacles, partial_mask=True).items()
+    }
+    outputs = dict(zip((o.name for o in session.get_outputs()), session.run(None, feed)))
+    assert outputs["q_values"].shape == (7, 9)
+    if name != "iqn":
+        assert outputs["target_weights"].shape == (7, evaders)
+
+
+@pytest.mark.parametrize("name", ["terl", "dqn"])
+def test_exported_inputs_and_outputs_follow_contract(exported, name):
+    model, path = exported[name]
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    inputs = {i.name: (i.type, i.shape) for i in session.get_inputs()}
+    assert inputs == {
+        "ego": ("tensor(float)", ["B", 4]),
+        "teammates": ("tensor(float)", ["B", "P", 7]),
+        "evaders": ("tensor(float)", ["B", "E", 7]),
+        "obstacles": ("tensor(float)", ["B", "O", 5]),
+        "mask": ("tensor(bool)", ["B", "1+P+E+O"]),
+    }
+    outputs = {o.name: (o.type, o.shape) for o in session.get_outputs()}
+    expected = {"q_values": ("tensor(float)", ["B", 9])}
+    if model.has_target_selection:
+        expected["target_weights"] = ("tensor(float)", ["B", "E"])
+    assert outputs == expected
+
+
+def test_exported_file_passes_onnx_checker(exported):
+    _, path = exported["terl"]
+    onnx.checker.check_model(onnx.load(str(path)), full_check=True)
+
+
+def test_metadata_holds_contract_keys_and_caller_keys(exported):
+    _, path = exported["terl"]
+    metadata = read_metadata(path)
+    assert metadata["terl.contract"] == "1"
+    assert metadata["terl.model"] == "terl"
+    assert (metadata["terl.hidden"], metadata["terl.layers"], metadata["terl.heads"]) == ("32", "2", "4")
+    assert metadata["terl.training_steps"] == "1000"
+    assert metadata["terl.trained_on"] == "small"
+
+
+def test_metadata_records_zero_layers_and_heads_for_bodies_without_transformer(exported):
+    _, path = exported["iqn"]
+    metadata = read_metadata(path)
+    assert (metadata["terl.model"], metadata["terl.layers"], metadata["terl.heads"]) == ("iqn", "0", "0")
+
+
+def test_pursuer_action_table_round_trips_through_metadata(exported):
+    _, path = exported["dqn"]
+    table = np.array(json.loads(read_metadata(path)["terl.pursuer_actions"]))
+    np.testing.assert_array_equal(table, PURSUER_ACTIONS)
+
+
+def test_caller_cannot_override_contract_metadata(tmp_path):
+    model = build_network("iqn", hidden=16, layers=0, heads=0)
+    with pytest.raises(ValueError, match="terl.model"):
+        export_onnx(model, tmp_path / "policy.onnx", {"terl.model": "terl"})
+
+
+def test_parity_check_fails_when_model_differs_from_file(exported):
+    model, path = exported["terl-no-re"]
+    changed = build_network(**model.config).eval()
+    changed.load_state_dict(model.state_dict())
+    with torch.no_grad():
+        changed.head.out.bias.add_(0.01)
+    with pytest.raises(ParityError, match="q_values"):
+        check_parity(changed, path)
+
+
+def test_export_leaves_training_mode_as_it_was(tmp_path):
+    model = build_network("terl", hidden=16, layers=1, heads=2).train()
+    export_onnx(model, tmp_path / "policy.onnx", {})
+    assert model.training

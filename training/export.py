@@ -1,0 +1,272 @@
+"""Export a trained Q-network as one ONNX policy (policy.md section 3, contract version 1).
+
+The graph is traced in eval mode with the legacy TorchScript exporter (opset 17):
+inputs ego/teammates/evaders/obstacles float32 and mask bool with dynamic B, P, E
+and O; outputs q_values [B, 9] (mean of the quantiles at the fixed fractions
+(k + 0.5) / 32, folded into the graph) and, for models with target selection,
+target_weights [B, E]. `export_onnx` checks the file with onnx.checker and then
+compares it with the torch model by `check_parity`.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import torch
+from torch import nn
+
+from terl_rt.actions import PURSUER_ACTIONS
+from training.networks.encoders import QNetwork
+
+CONTRACT_VERSION = "1"
+"""Value of the `terl.contract` metadata key."""
+OPSET = 17
+"""ONNX opset the policies are written with."""
+PARITY_TOLERANCE = 1e-4
+"""Largest absolute torch-onnxruntime difference `check_parity` accepts."""
+INPUT_NAMES = ("ego", "teammates", "evaders", "obstacles", "mask")
+"""Contract input names, in call order."""
+
+
+class ParityError(RuntimeError):
+    """The exported graph and the torch model disagree beyond the tolerance."""
+
+
+class _ContractGraph(nn.Module):
+    """The traced function: the five contract inputs -> q_values [B, 9] (, target_weights [B, E])."""
+
+    def __init__(self, model: QNetwork) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(
+        self,
+        ego: torch.Tensor,
+        teammates: torch.Tensor,
+        evaders: torch.Tensor,
+        obstacles: torch.Tensor,
+        mask: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
+        q_values, target_weights = self.model.policy_outputs(ego, teammates, evaders, obstacles, mask)
+        return (q_values,) if target_weights is None else (q_values, target_weights)
+
+
+def output_names(model: QNetwork) -> tuple[str, ...]:
+    """("q_values",), plus "target_weights" for models with target selection."""
+    return ("q_values", "target_weights") if model.has_target_selection else ("q_values",)
+
+
+def contract_metadata(model: QNetwork) -> dict[str, str]:
+    """The metadata_props every policy carries: contract, model name, sizes, action table (JSON)."""
+    config = model.config
+    return {
+        "terl.contract": CONTRACT_VERSION,
+        "terl.model": config["name"],
+        "terl.hidden": str(config["hidden"]),
+        "terl.layers": str(config["layers"]),
+        "terl.heads": str(config["heads"]),
+        # [9, 2] rows of (acceleration m/s^2, yaw rate rad/s), index = action id.
+        "terl.pursuer_actions": json.dumps(PURSUER_ACTIONS.tolist()),
+    }
+
+
+def merged_metadata(model: QNetwork, extra: Mapping[str, str]) -> dict[str, str]:
+    """Contract metadata plus the caller's keys; a caller may not override a contract key."""
+    metadata = contract_metadata(model)
+    for key, value in extra.items():
+        if not isinstance(key, str) or not isinstance(value, str):
+            raise TypeError(f"metadata must map str to str; got {key!r}: {value!r}")
+        if key in metadata and metadata[key] != value:
+            raise ValueError(
+                f"metadata '{key}' is set by the exporter to '{metadata[key]}'; got '{value}'"
+            )
+        metadata[key] = value
+    return metadata
+
+
+def example_inputs(
+    batch: int,
+    teammates: int,
+    evaders: int,
+    obstacles: int,
+    *,
+    seed: int = 0,
+    partial_mask: bool = False,
+) -> dict[str, torch.Tensor]:
+    """Random contract inputs by name: ego [B, 4], teammates [B, P, 7], evaders [B, E, 7],
+    obstacles [B, O, 5] float32 (values of metre and m/s scale), mask [B, 1 + P + E + O] bool.
+
+    With `partial_mask`, slots are present at random, row 1 (if any) has no evader and
+    row 2 (if any) only its ego; otherwise every slot is present.
+    """
+    generator = torch.Generator().manual_seed(seed)
+    width = 1 + teammates + evaders + obstacles
+    mask = torch.ones(batch, width, dtype=torch.bool)
+    if partial_mask:
+        mask = torch.rand(batch, width, generator=generator) < 0.6
+        mask[1:2, 1 + teammates : 1 + teammates + evaders] = False
+        mask[2:3] = False
+        mask[:, 0] = True
+    return {
+        "ego": 5.0 * torch.randn(batch, 4, generator=generator),
+        "teammates": 5.0 * torch.randn(batch, teammates, 7, generator=generator),
+        "evaders": 5.0 * torch.randn(batch, evaders, 7, generator=generator),
+        "obstacles": 5.0 * torch.randn(batch, obstacles, 5, generator=generator),
+        "mask": mask,
+    }
+
+
+def _dynamic_axes(model: QNetwork) -> dict[str, dict[int, str]]:
+    axes = {
+        "ego": {0: "B"},
+        "teammates": {0: "B", 1: "P"},
+        "evaders": {0: "B", 1: "E"},
+        "obstacles": {0: "B", 1: "O"},
+        "mask": {0: "B", 1: "1+P+E+O"},
+        "q_values": {0: "B"},
+    }
+    if model.has_target_selection:
+        axes["target_weights"] = {0: "B", 1: "E"}
+    return axes
+
+
+def _trace_to_onnx(model: QNetwork, path: Path, opset: int) -> None:
+    """Trace the eval-mode model on an example whose P, E, O differ from the usual sizes."""
+    # P=3, E=6, O=4 and a partial mask: sizes baked in by mistake would show in the parity check.
+    inputs = example_inputs(3, 3, 6, 4, partial_mask=True)
+    device = next(model.parameters()).device
+    args = tuple(inputs[name].to(device) for name in INPUT_NAMES)
+    with warnings.catch_warnings():
+        # The legacy exporter announces its own deprecation; its output is what we check.
+        warnings.filterwarnings("ignore", message=".*legacy TorchScript", category=DeprecationWarning)
+        warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"torch\.onnx")
+        torch.onnx.export(
+            _ContractGraph(model),
+            args,
+            str(path),
+            dynamo=False,
+            input_names=list(INPUT_NAMES),
+            output_names=list(output_names(model)),
+            dynamic_axes=_dynamic_axes(model),
+            opset_version=opset,
+            do_constant_folding=True,
+        )
+
+
+def _write_metadata(path: Path, metadata: Mapping[str, str]) -> None:
+    """Replace the file's metadata_props by `metadata`, check the model and save it."""
+    proto = onnx.load(str(path))
+    del proto.metadata_props[:]
+    for key, value in sorted(metadata.items()):
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(proto, full_check=True)
+    onnx.save(proto, str(path))
+
+
+def export_onnx(
+    model: QNetwork,
+    path: str | Path,
+    metadata: Mapping[str, str],
+    *,
+    opset: int = OPSET,
+) -> Path:
+    """Write `model` as one contract-v1 ONNX policy at `path` and return the path.
+
+    Args:
+        model: any registry network; its train/eval mode is restored afterwards.
+        path: output file (.onnx); parent folders are created.
+        metadata: extra metadata_props, str -> str (e.g. `terl.training_steps`,
+            `terl.trained_on`); the contract keys are written by the exporter.
+        opset: ONNX opset.
+
+    Raises:
+        ParityError: onnxruntime and torch differ by more than 1e-4 (see `check_parity`).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    props = merged_metadata(model, metadata)
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            _trace_to_onnx(model, path, opset)
+        _write_metadata(path, props)
+        check_parity(model, path)
+    finally:
+        model.train(was_training)
+    return path
+
+
+def read_metadata(path: str | Path) -> dict[str, str]:
+    """metadata_props of an ONNX file as a dict."""
+    proto = onnx.load(str(path), load_external_data=False)
+    return {entry.key: entry.value for entry in proto.metadata_props}
+
+
+def parity_cases(evader_slots: tuple[int, ...]) -> Iterator[tuple[str, dict[str, torch.Tensor]]]:
+    """Inputs `check_parity` compares on: per E, all slots present (P = O = 5) and a
+    partial mask with other P and O (4 and 6). Yields (description, inputs)."""
+    for index, evaders in enumerate(evader_slots):
+        yield f"E={evaders} all present", example_inputs(4, 5, evaders, 5, seed=2 * index)
+        yield f"E={evaders} partial mask, P=4, O=6", example_inputs(
+            5, 4, evaders, 6, seed=2 * index + 1, partial_mask=True
+        )
+
+
+def check_parity(
+    model: QNetwork,
+    path: str | Path,
+    *,
+    evader_slots: tuple[int, ...] = (8, 14, 20),
+    tolerance: float = PARITY_TOLERANCE,
+) -> float:
+    """Compare the eval-mode torch model with onnxruntime on the file at `path`.
+
+    Runs every case of `parity_cases` and compares q_values [B, 9] and, where the
+    model has them, target_weights [B, E]. Returns the largest absolute difference.
+
+    Raises:
+        ParityError: a difference above `tolerance`, a missing or extra output, or
+            a non-finite value; the message names the case and output.
+    """
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    names = output_names(model)
+    got_names = tuple(output.name for output in session.get_outputs())
+    if got_names != names:
+        raise ParityError(f"{path}: expected outputs {names}, got {got_names}")
+    device = next(model.parameters()).device
+    was_training = model.training
+    model.eval()
+    worst = 0.0
+    try:
+        for case, inputs in parity_cases(evader_slots):
+            with torch.no_grad():
+                expected = model.policy_outputs(*(inputs[n].to(device) for n in INPUT_NAMES))
+            feed = {name: tensor.numpy() for name, tensor in inputs.items()}
+            for name, want, got in zip(names, expected, session.run(list(names), feed)):
+                worst = max(worst, _compare(f"{case}, {name}", want.cpu().numpy(), got, tolerance))
+    finally:
+        model.train(was_training)
+    return worst
+
+
+def _compare(label: str, expected: np.ndarray, got: np.ndarray, tolerance: float) -> float:
+    """Largest |expected - got|; raises ParityError on shape mismatch, NaN or excess difference."""
+    if expected.shape != got.shape:
+        raise ParityError(f"{label}: torch shape {expected.shape}, onnxruntime shape {got.shape}")
+    if not np.isfinite(got).all():
+        raise ParityError(f"{label}: onnxruntime returned non-finite values")
+    difference = float(np.abs(expected - got).max()) if expected.size else 0.0
+    if not difference <= tolerance:
+        raise ParityError(
+            f"{label}: max |torch - onnxruntime| = {difference:.3g} > {tolerance:g}; "
+            "the exported graph computes something else (sizes baked in at trace time?)"
+        )
+    return difference
