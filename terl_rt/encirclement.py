@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.dynamics import TWO_PI
-from terl_rt.geometry import Geometry, heading
+from terl_rt.geometry import Geometry, heading, not_self
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -19,7 +19,7 @@ def collisions(state: WorldState, geometry: Geometry, params: WorldParams) -> np
     r = params.robot_radius
     active = state.pursuer_active
     hit_pursuer = (
-        (geometry.pursuer_pursuer <= 2 * r) & active[:, None, :] & ~np.eye(num_pursuers, dtype=bool)
+        (geometry.pursuer_pursuer <= 2 * r) & active[:, None, :] & not_self(num_pursuers)
     ).any(-1)
     hit_evader = ((geometry.pursuer_evader <= 2 * r) & state.evader_active[:, None, :]).any(-1)
     hit_obstacle = (geometry.pursuer_obstacle <= r + state.obstacle_r[:, None, :]).any(-1)
@@ -75,7 +75,7 @@ def encircle(state: WorldState, geometry: Geometry, params: WorldParams) -> Enci
     perceives = (
         (geometry.pursuer_pursuer <= p.perception_radius + p.robot_radius)
         & active[:, None, :] & active[:, :, None]
-        & ~np.eye(num_pursuers, dtype=bool)
+        & not_self(num_pursuers)
     )
     helpers = np.matmul(perceives.astype(np.float64), strictly_close.astype(np.float64))  # [B, N, M]
     env, pursuer, evader = np.nonzero(close & (helpers >= 2))

@@ -13,7 +13,7 @@ import numpy as np
 
 from terl_rt.actions import EVADER_YAW_RATES
 from terl_rt.dynamics import TWO_PI, as_complex
-from terl_rt.geometry import Geometry, gather, nearest_slots
+from terl_rt.geometry import Geometry, gather, nearest_slots, not_self
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -101,7 +101,7 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     reach = p.perception_radius + p.robot_radius
     pursuer_dist = np.swapaxes(geometry.pursuer_evader, 1, 2)  # [B, M, N]
     idx_p, present_p, dist_p = nearest_slots(pursuer_dist, (pursuer_dist <= reach) & state.pursuer_active[:, None, :], APF_SLOTS)
-    others = (geometry.evader_evader <= reach) & state.evader_active[:, None, :] & ~np.eye(num_evaders, dtype=bool)
+    others = (geometry.evader_evader <= reach) & state.evader_active[:, None, :] & not_self(num_evaders)
     idx_e, present_e, dist_e = nearest_slots(geometry.evader_evader, others, APF_SLOTS)
     rel = np.concatenate([gather(geometry.pursuer_z, idx_p), gather(geometry.evader_z, idx_e)], -1) - own_z
     vel = np.concatenate([gather(as_complex(state.pursuer_vel), idx_p), gather(as_complex(state.evader_vel), idx_e)], -1)

@@ -73,14 +73,19 @@ def nearest_slots(distance: np.ndarray, valid: np.ndarray, k: int) -> tuple[np.n
     """
     num_envs, num_rows, num = distance.shape
     key = np.where(valid, distance, np.inf)
+    if num < k:  # empty columns to fill the slots
+        key = np.concatenate([key, np.full((num_envs, num_rows, k - num), np.inf)], axis=-1)
     index = np.argsort(key, axis=-1)[..., :k]
     env, row = _grid(num_envs, num_rows)
     dist = key[env, row, index]
-    if num < k:
-        pad = ((0, 0), (0, 0), (0, k - num))
-        index, dist = np.pad(index, pad), np.pad(dist, pad, constant_values=np.inf)
     present = dist < np.inf
     return np.where(present, index, 0), present, np.where(present, dist, 0.0)
+
+
+@lru_cache(maxsize=64)
+def not_self(num: int) -> np.ndarray:
+    """[num, num] bool: True off the diagonal (an entity is not its own neighbour)."""
+    return ~np.eye(num, dtype=bool)
 
 
 def gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:

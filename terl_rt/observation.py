@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.dynamics import as_complex
-from terl_rt.geometry import Geometry, bearing, gather, heading, nearest_slots
+from terl_rt.geometry import Geometry, bearing, gather, heading, nearest_slots, not_self
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -102,7 +102,7 @@ def pursuer_observations(
     perceived = (
         (geometry.pursuer_pursuer <= params.perception_radius + params.robot_radius)
         & state.pursuer_active[:, None, :]
-        & ~np.eye(num_pursuers, dtype=bool)
+        & not_self(num_pursuers)
     )
     idx, present_t, dist = nearest_slots(geometry.pursuer_pursuer, perceived, TEAMMATE_SLOTS)
     pos = (gather(geometry.pursuer_z, idx) - own_z) * to_ego
@@ -112,8 +112,7 @@ def pursuer_observations(
     )
 
     # evaders: nearest active evaders at any distance.
-    visible = np.broadcast_to(state.evader_active[:, None, :], geometry.pursuer_evader.shape)
-    idx, present_e, dist = nearest_slots(geometry.pursuer_evader, visible, evader_slots)
+    idx, present_e, dist = nearest_slots(geometry.pursuer_evader, state.evader_active[:, None, :], evader_slots)
     pos = (gather(geometry.evader_z, idx) - own_z) * to_ego
     vel = gather(evader_vel, idx) * to_ego
     evaders = _tokens([pos.real, pos.imag, vel.real, vel.imag, dist, bearing(pos), heading(vel)], present_e)
@@ -134,5 +133,5 @@ def pursuer_observations(
         evaders=evaders,
         obstacles=obstacles,
         mask=mask,
-        pursuer_index=np.broadcast_to(np.arange(num_pursuers), (num_envs, num_pursuers)).copy(),
+        pursuer_index=np.zeros((num_envs, 1), np.int64) + np.arange(num_pursuers),
     )

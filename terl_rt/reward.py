@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from terl_rt.encirclement import Encirclement
-from terl_rt.geometry import Geometry
+from terl_rt.geometry import Geometry, not_self
 from terl_rt.params import WorldParams
 
 REWARD_TERMS = ("time", "collision", "emergency", "guidance", "cooperation", "boundary", "completion")
@@ -45,7 +45,7 @@ def reward_terms(
 
     # emergency: an active teammate, active evader or perceived obstacle closer than d_safe.
     teammate_near = (
-        (geometry.pursuer_pursuer < p.d_safe) & pursuer_active[:, None, :] & ~np.eye(num_pursuers, dtype=bool)
+        (geometry.pursuer_pursuer < p.d_safe) & pursuer_active[:, None, :] & not_self(num_pursuers)
     ).any(-1)
     evader_near = ((geometry.pursuer_evader < p.d_safe) & evader_active[:, None, :]).any(-1)
     obstacle_near = (
