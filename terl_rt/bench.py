@@ -1,4 +1,4 @@
-"""Benchmarks of the simulator (timings are reported, never asserted in tests)."""
+"""Benchmarks of the simulator and of policies (timings are reported, never asserted in tests)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from terl_rt.scenario import Scenario
+from terl_rt.simulator import Simulator
 from terl_rt.world import World
 
 SCALING_PURSUERS = (15, 80, 200, 400)
@@ -70,4 +71,63 @@ def scaling_scenario(pursuers: int) -> Scenario:
     side = round(220.0 * math.sqrt(pursuers / 80.0))
     return Scenario.preset("large-80").replace(
         name=f"scale-{pursuers}", pursuers=pursuers, evaders=max(1, pursuers // 4), arena=(float(side), float(side))
+    )
+
+
+@dataclass(frozen=True)
+class PolicyBenchmark:
+    """Time to choose the actions of all active pursuers: one policy call per step."""
+
+    policy: str
+    scenario: str
+    pursuers: int
+    steps: int
+    """timed steps (policy calls)."""
+    rows_mean: float
+    """mean active pursuers per call (the batch the policy saw)."""
+    ms_per_step: float
+    """milliseconds per step: evaluate on every active pursuer, actions scattered to [N]."""
+    ms_p50: float
+    ms_p90: float
+    us_per_pursuer: float
+    """microseconds per pursuer row (ms_per_step / rows_mean)."""
+    resets: int
+    """episodes restarted during the run (not timed)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def bench_policy(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicyBenchmark:
+    """Time `steps` action choices (after `warmup` untimed ones) on real observations:
+    a Simulator driven by the policy itself, restarted untimed when an episode ends."""
+    simulator = Simulator(scenario, seed=seed)
+    observation = simulator.reset()
+    times, rows, resets = [], [], 0
+    for k in range(warmup + steps):
+        if simulator.done:
+            observation = simulator.reset()
+            resets += 1
+        start = time.perf_counter()
+        output = policy.evaluate(observation)
+        actions = np.zeros(scenario.pursuers, np.int64)
+        actions[observation.pursuer_index] = output.actions
+        elapsed = time.perf_counter() - start
+        if k >= warmup:
+            times.append(elapsed)
+            rows.append(len(observation.pursuer_index))
+        observation, _ = simulator.step(actions)
+    ms = 1e3 * np.array(times)
+    rows_mean = float(np.mean(rows))
+    return PolicyBenchmark(
+        policy=policy.name,
+        scenario=scenario.name,
+        pursuers=scenario.pursuers,
+        steps=steps,
+        rows_mean=rows_mean,
+        ms_per_step=float(ms.mean()),
+        ms_p50=float(np.percentile(ms, 50)),
+        ms_p90=float(np.percentile(ms, 90)),
+        us_per_pursuer=float(1e3 * ms.mean() / rows_mean),
+        resets=resets,
     )

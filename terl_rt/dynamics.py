@@ -70,18 +70,17 @@ def integrate(
     Each sub-step: c = current(x); v = s (cos theta, sin theta) + c; x += v dt;
     s = clip(s + (a - k s) dt, 0, s_max); theta = (theta + w dt) mod 2pi.
     Heading and speed do not depend on position: they are computed for every
-    sub-step j at once in closed form, theta_j = (theta + j w dt) mod 2pi and
-    s_j = clip(s* + (s - s*) (1 - k dt)^j, 0, s_max) with s* = a / k. The speed
-    recurrence is an increasing affine map whose fixed point s* is at most s_max,
-    so the clip binds monotonically and the closed form equals the iterated clip.
-    Only the position update loops, with the current.
+    sub-step first (the heading in closed form, theta_j = (theta + j w dt) mod 2pi),
+    and only the position update loops with the current.
     """
     count = np.arange(substeps + 1)[:, None, None]  # sub-step index j, [S+1, 1, 1]
     thetas = np.mod(theta + count * (yaw_rate * dt), TWO_PI)  # [S+1, B, R]
     thetas = np.where(thetas >= TWO_PI, 0.0, thetas)  # mod of a tiny negative angle rounds to 2pi
-    terminal = acceleration / drag  # s*, [B, R]
-    decay = (1.0 - drag * dt) ** count  # [S+1, 1, R]
-    speeds = np.minimum(np.maximum(terminal + (speed - terminal) * decay, 0.0), max_speed)
+    speeds = np.empty((substeps + 1,) + speed.shape)  # [S+1, B, R]
+    speeds[0] = speed
+    for j in range(substeps):
+        s = speeds[j]
+        speeds[j + 1] = np.minimum(np.maximum(s + (acceleration - drag * s) * dt, 0.0), max_speed)
     steer = speeds[:substeps] * np.exp(1j * thetas[:substeps])  # [S, B, R] complex m/s
     step_scale = moving * dt  # [B, R]: 0 freezes a robot
 

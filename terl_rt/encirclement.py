@@ -47,7 +47,7 @@ def ring_gaps(bearings: np.ndarray, member: np.ndarray) -> tuple[np.ndarray, np.
     Returns (max gap [C], min gap [C], std of gaps [C], count [C]) in rad.
     """
     count = member.sum(-1)
-    ordered = np.sort(np.where(member, bearings, np.inf), axis=-1)
+    ordered = np.sort(np.where(member, bearings, 2 * TWO_PI), axis=-1)  # non-members last
     gaps = np.diff(ordered, axis=-1)  # [C, N-1]; only the first count-1 are real
     real = np.arange(gaps.shape[-1]) < (count - 1)[:, None]
     rows = np.arange(len(count))

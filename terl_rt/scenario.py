@@ -185,6 +185,15 @@ def _validate(s: Scenario) -> None:
         value = getattr(s.params, name)
         if not _is_number(value) or not math.isfinite(value):
             raise ScenarioError(f"params.{name}: must be a finite number, got {value!r}")
+    p = s.params
+    margins = [("evader_spawn_margin", p.evader_spawn_margin), ("pursuer_spawn_margin", p.pursuer_spawn_margin)]
+    if s.obstacles and s.initial_state is None:
+        margins.append(("obstacle_spawn_margin", p.obstacle_spawn_margin))
+    for name, margin in margins:
+        if s.initial_state is None and min(s.arena) < 2 * margin:
+            raise ScenarioError(
+                f"arena: {s.arena[0]:g} x {s.arena[1]:g} m leaves no room inside params.{name} = {margin:g} m of every wall"
+            )
     if s.initial_state is not None:
         _validate_initial_state(s)
 
@@ -273,8 +282,9 @@ def _initial_state_from_dict(data: Any) -> InitialState:
         for i, row in enumerate(rows):
             if not isinstance(row, list) or len(row) != width:
                 raise ScenarioError(f"{where}[{i}]: must be a list of {width} numbers, got {row!r}")
-            for value in row:
-                if not (_is_number(value) or (group == "vortices" and isinstance(value, bool))):
+            for column, value in enumerate(row):
+                clockwise_flag = group == "vortices" and column == 3 and isinstance(value, bool)
+                if not (_is_number(value) or clockwise_flag):
                     raise ScenarioError(f"{where}[{i}]: {value!r} is not a number")
         groups[group] = np.array(rows, dtype=np.float64).reshape(len(rows), width)
     return InitialState(**groups)

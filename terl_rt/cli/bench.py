@@ -6,8 +6,15 @@ import json
 
 import click
 
-from terl_rt.bench import SCALING_PURSUERS, bench_sim, scaling_scenario
-from terl_rt.cli.options import json_option, scenario_option, seed_option
+from terl_rt.bench import SCALING_PURSUERS, bench_policy, bench_sim, scaling_scenario
+from terl_rt.cli.options import (
+    json_option,
+    open_policy,
+    policy_option,
+    scenario_option,
+    seed_option,
+    threads_option,
+)
 
 steps_option = click.option(
     "--steps", type=click.IntRange(min=1), default=500, show_default=True, help="Timed steps."
@@ -60,3 +67,26 @@ def scaling(steps: int, as_json: bool) -> None:
     for row in rows:
         per = 1e3 * row["ms_per_step"] / row["pursuers"]
         click.echo(f"{row['pursuers']:>9}{row['evaders']:>9}{row['ms_per_step']:>10.3f}{row['env_steps_per_s']:>10.0f}{per:>12.1f}")
+
+
+@bench.command("policy")
+@policy_option
+@scenario_option
+@steps_option
+@seed_option
+@threads_option
+@json_option
+def policy_speed(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
+    """Policy speed: ms per step to choose the actions of all active pursuers (one
+    evaluate call on the real observations of a Simulator driven by the policy)."""
+    policy = open_policy(policy_path, threads=threads)
+    result = bench_policy(policy, scenario, steps, seed=seed)
+    if as_json:
+        click.echo(json.dumps({**result.to_dict(), "threads": threads}))
+        return
+    click.echo(
+        f"{result.policy} on {result.scenario}: {result.pursuers} pursuers ({result.rows_mean:.1f} active on average), "
+        f"{result.steps} steps, threads {threads or 'default'}\n"
+        f"  {result.ms_per_step:.3f} ms per step (p50 {result.ms_p50:.3f}, p90 {result.ms_p90:.3f}), "
+        f"{result.us_per_pursuer:.1f} us per pursuer"
+    )

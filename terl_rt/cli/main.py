@@ -7,10 +7,20 @@ import logging
 import click
 
 from terl_rt.cli.bench import bench
+from terl_rt.cli.eval import eval_command
+from terl_rt.cli.info import info
+from terl_rt.cli.render import render_command
+from terl_rt.cli.replay import replay
 from terl_rt.cli.scenarios import scenarios
+from terl_rt.contract import ContractError
+from terl_rt.episode_log import EpisodeLogError
+from terl_rt.render import RenderError
 from terl_rt.scenario import ScenarioError
 
-USER_ERRORS = (ScenarioError, FileNotFoundError, IsADirectoryError)
+USER_ERRORS = (
+    ScenarioError, ContractError, EpisodeLogError, RenderError,
+    FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError,
+)
 """Exceptions that mean bad input: one line on stderr and exit status 2 (traceback with --debug)."""
 
 
@@ -23,7 +33,7 @@ class TerlGroup(click.Group):
         except USER_ERRORS as err:
             if ctx.obj and ctx.obj.get("debug"):
                 raise
-            click.echo(f"Error: {err}", err=True)
+            click.echo(f"Error: {' '.join(str(err).split())}", err=True)
             ctx.exit(2)
 
 
@@ -44,4 +54,8 @@ def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
 
 
 cli.add_command(bench)
+cli.add_command(eval_command)
+cli.add_command(info)
+cli.add_command(render_command)
+cli.add_command(replay)
 cli.add_command(scenarios)

@@ -2,27 +2,109 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from terl_rt.scenario import Scenario, ScenarioError
+import terl_rt
+from terl_rt.policy import ContractError, OnnxPolicy
+from terl_rt.scenario import PAPER_SUITE, Scenario
+
+DEFAULT_POLICY = Path("exported") / "terl.onnx"
+"""The default policy, relative to the repository checkout (or the working directory)."""
+
+
+class BadInput(click.ClickException):
+    """An expected user mistake: printed as one line "Error: ...", exit status 2."""
+
+    exit_code = 2
 
 
 def _scenario(ctx: click.Context, param: click.Parameter, value: str | None) -> Scenario | None:
-    if value is None:
-        return None
+    # ScenarioError propagates: the terl-rt group prints it as one line, exit 2.
+    return None if value is None else Scenario.preset(value)
+
+
+def default_policy_path() -> Path:
+    """exported/terl.onnx of the checkout terl_rt was imported from, else of the working
+    directory; BadInput when neither exists."""
+    checkout = Path(terl_rt.__file__).resolve().parents[1] / DEFAULT_POLICY
+    for candidate in (checkout, Path.cwd() / DEFAULT_POLICY):
+        if candidate.is_file():
+            return candidate
+    raise BadInput(f"no policy at {DEFAULT_POLICY} yet; pass --policy")
+
+
+def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
+    """Open `path` (None: the default policy); contract refusals name the file."""
+    resolved = default_policy_path() if path is None else Path(path)
     try:
-        return Scenario.preset(value)
-    except ScenarioError as err:
-        raise click.BadParameter(str(err), ctx=ctx, param=param) from None
+        return OnnxPolicy(resolved, threads=threads)
+    except ContractError as error:
+        if str(resolved) in str(error):
+            raise
+        raise ContractError(f"{resolved}: {error}") from error
+
+
+def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: str | None) -> list[Scenario]:
+    """The scenarios of `--scenario ... | --scenario-file F | --suite paper` (default small-15)."""
+    given = sum(bool(choice) for choice in (names, scenario_file, suite))
+    if given > 1:
+        raise BadInput("pass only one of --scenario, --scenario-file and --suite")
+    if scenario_file:
+        return [Scenario.from_file(scenario_file)]
+    if suite:
+        return [Scenario.preset(name) for name in PAPER_SUITE]
+    return [Scenario.preset(name) for name in (names or ("small-15",))]
 
 
 scenario_option = click.option(
     "--scenario", "scenario", default="small-15", show_default=True, callback=_scenario,
     help="Preset scenario name (see `terl-rt scenarios`).",
 )
+scenarios_option = click.option(
+    "--scenario", "scenario_names", multiple=True, metavar="NAME",
+    help="Preset scenario (repeat for several; default small-15; see `terl-rt scenarios`).",
+)
+scenario_file_option = click.option(
+    "--scenario-file", type=str, default=None, metavar="FILE",
+    help="A JSON scenario file (world.md section 12) instead of presets.",
+)
+suite_option = click.option(
+    "--suite", type=click.Choice(["paper"]), default=None,
+    help="A scenario suite: paper = the 10 evaluation presets of Table III.",
+)
 seed_option = click.option(
     "--seed", type=int, default=0, show_default=True, help="Random seed of the episodes."
 )
 json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object instead of a table."
+)
+policy_option = click.option(
+    "--policy", "policy_path", type=str, default=None, metavar="PATH",
+    help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout].",
+)
+threads_option = click.option(
+    "--threads", type=click.IntRange(min=1), default=None,
+    help="onnxruntime intra-op threads [default: onnxruntime's choice; 1 per worker].",
+)
+episodes_option = click.option(
+    "--episodes", type=click.IntRange(min=1), default=20, show_default=True,
+    help="Episodes per scenario; episode k runs with seed + k.",
+)
+max_steps_option = click.option(
+    "--max-steps", type=click.IntRange(min=1), default=None,
+    help="Step limit per episode (0.5 s steps) [default: the scenario's, 1000].",
+)
+workers_option = click.option(
+    "--workers", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Processes to spread the episodes over (results are the same as with 1).",
+)
+log_option = click.option(
+    "--log", "log_path", type=str, default=None, metavar="FILE.mcap",
+    help="Write every step of every episode to this MCAP log (Foxglove, replay, render).",
+)
+episode_option = click.option(
+    "--episode", type=click.IntRange(min=0), default=None,
+    help="Episode of the log, by its position in the file (0-based).",
 )

@@ -1,0 +1,189 @@
+"""Run a policy inside your own controller: from what one robot knows to its next action.
+
+`decide` takes one pursuer's view of the world in world coordinates (m, rad, m/s),
+builds its observation exactly as the simulator does (terl_rt.observation on a
+one-environment world with this robot as pursuer 0) and asks the policy. `observe`
+stops before the policy, for those who run their own model.
+
+Example (hold the returned acceleration and yaw rate for one 0.5 s decision step)::
+
+    import numpy as np
+    from terl_rt.embed import decide
+    from terl_rt.policy import OnnxPolicy
+
+    policy = OnnxPolicy("exported/terl.onnx")
+    decision = decide(
+        policy,
+        ego_xy=(10.0, 12.0), ego_heading=0.3, ego_velocity=(1.2, 0.4),
+        teammates=[(18.0, 15.0, 0.5, 1.0), (4.0, 20.0, -0.2, 0.8)],  # x, y, vx, vy
+        evaders=[(30.0, 25.0, -1.0, 0.0)],                           # x, y, vx, vy
+        obstacles=[(15.0, 5.0, 1.05)],                               # x, y, radius
+    )
+    print(decision.action, decision.acceleration, decision.yaw_rate)
+    print(np.round(decision.q_values, 3), decision.target_weights)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from terl_rt.actions import PURSUER_ACTIONS
+from terl_rt.geometry import Geometry
+from terl_rt.observation import Observation, pursuer_observations
+from terl_rt.params import WorldParams
+from terl_rt.state import WorldState
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the policy chose for one pursuer."""
+
+    action: int
+    """index into the pursuer action table (world.md section 2)."""
+    acceleration: float
+    """m/s^2: linear acceleration to hold for one decision step (0.5 s)."""
+    yaw_rate: float
+    """rad/s: yaw rate to hold for one decision step."""
+    q_values: np.ndarray
+    """[9] float32: expected return of each action."""
+    target_weights: np.ndarray | None
+    """[E] float32 preference over the evader slots (nearest first), or None when the
+    model has no target selection."""
+
+
+def _rows(name: str, value, width: int, columns: str) -> np.ndarray:
+    """A [K, width] float64 array from rows; ValueError naming `name` when malformed."""
+    try:
+        array = np.asarray(value if value is not None else [], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected rows of {width} numbers ({columns}), got {value!r}") from None
+    if array.size == 0:
+        array = array.reshape(0, width)
+    if array.ndim != 2 or array.shape[1] != width:
+        raise ValueError(f"{name}: expected shape (K, {width}) of rows ({columns}), got {array.shape}")
+    bad = ~np.isfinite(array)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name}[{row}]: {columns.split(', ')[col]} is {array[row, col]}; every value must be finite")
+    return array
+
+
+def _vector(name: str, value, size: int, columns: str) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected {size} numbers ({columns}), got {value!r}") from None
+    if array.shape != (size,):
+        raise ValueError(f"{name}: expected shape ({size},) ({columns}), got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name}: {array.tolist()} holds a non-finite value; every value must be finite")
+    return array
+
+
+def observe(
+    ego_xy,
+    ego_heading: float,
+    ego_velocity,
+    teammates=None,
+    evaders=None,
+    obstacles=None,
+    evader_slots: int = 8,
+    params: WorldParams | None = None,
+) -> Observation:
+    """The observation of one pursuer, leading shape [1] (pursuer_index [0]).
+
+    ego_xy (2,) m; ego_heading rad; ego_velocity (2,) m/s ground velocity (steer plus
+    current), world frame. teammates [T, 4] (x, y, vx, vy) of the other active pursuers,
+    evaders [M, 4] (x, y, vx, vy) of the evaders not yet encircled, obstacles [O, 3]
+    (x, y, radius): world frame, any number of rows, in any order; perception (radius R)
+    and slot limits apply as in the simulator. evader_slots: E, the policy's evader
+    slots (8 small, 14 medium, 20 large, 12 CC). params: the world's constants
+    (perception radius, robot radius, ...), default WorldParams().
+    Raises ValueError naming the argument for wrong shapes or non-finite values.
+    """
+    params = WorldParams() if params is None else params
+    if not isinstance(params, WorldParams):
+        raise ValueError(f"params: expected a WorldParams or None, got {type(params).__name__}")
+    if isinstance(evader_slots, bool) or not isinstance(evader_slots, (int, np.integer)) or evader_slots < 1:
+        raise ValueError(f"evader_slots: expected a positive integer, got {evader_slots!r}")
+    xy = _vector("ego_xy", ego_xy, 2, "x, y")
+    velocity = _vector("ego_velocity", ego_velocity, 2, "vx, vy")
+    try:
+        heading = float(ego_heading)
+    except (TypeError, ValueError):
+        raise ValueError(f"ego_heading: expected one number (rad), got {ego_heading!r}") from None
+    if not math.isfinite(heading):
+        raise ValueError(f"ego_heading: is {heading}; it must be finite")
+    mates = _rows("teammates", teammates, 4, "x, y, vx, vy")
+    targets = _rows("evaders", evaders, 4, "x, y, vx, vy")
+    discs = _rows("obstacles", obstacles, 3, "x, y, radius")
+    if (discs[:, 2] <= 0).any():
+        row = int(np.flatnonzero(discs[:, 2] <= 0)[0])
+        raise ValueError(f"obstacles[{row}]: radius is {discs[row, 2]}; radii must be > 0")
+
+    # One world, the ego as pursuer 0. Teammates' and evaders' headings follow their
+    # velocity; the observation reads only the observer's heading.
+    pursuer_xy = np.concatenate([xy[None], mates[:, :2]])
+    pursuer_vel = np.concatenate([velocity[None], mates[:, 2:]])
+    pursuer_theta = np.concatenate([[heading], np.arctan2(mates[:, 3], mates[:, 2])]) % (2 * math.pi)
+    evader_theta = np.arctan2(targets[:, 3], targets[:, 2]) % (2 * math.pi)
+    state = WorldState(
+        pursuer_xy=pursuer_xy[None],
+        pursuer_theta=pursuer_theta[None],
+        pursuer_speed=np.hypot(pursuer_vel[:, 0], pursuer_vel[:, 1])[None],
+        pursuer_vel=pursuer_vel[None],
+        pursuer_active=np.ones((1, len(pursuer_xy)), bool),
+        evader_xy=targets[None, :, :2].copy(),
+        evader_theta=evader_theta[None],
+        evader_speed=np.hypot(targets[:, 2], targets[:, 3])[None],
+        evader_vel=targets[None, :, 2:].copy(),
+        evader_active=np.ones((1, len(targets)), bool),
+        obstacle_xy=discs[None, :, :2].copy(),
+        obstacle_r=discs[None, :, 2].copy(),
+        vortex_xy=np.zeros((1, 0, 2)),
+        vortex_gamma=np.zeros((1, 0)),
+        vortex_clockwise=np.zeros((1, 0), bool),
+        steps=np.zeros(1, np.int64),
+    )
+    every = pursuer_observations(state, Geometry.of(state), params, int(evader_slots))
+    return Observation(
+        ego=every.ego[0, :1],
+        teammates=every.teammates[0, :1],
+        evaders=every.evaders[0, :1],
+        obstacles=every.obstacles[0, :1],
+        mask=every.mask[0, :1],
+        pursuer_index=np.zeros(1, np.int64),
+    )
+
+
+def decide(
+    policy,
+    ego_xy,
+    ego_heading: float,
+    ego_velocity,
+    teammates=None,
+    evaders=None,
+    obstacles=None,
+    evader_slots: int = 8,
+    params: WorldParams | None = None,
+) -> Decision:
+    """The policy's action for one pursuer; arguments as in `observe`.
+
+    policy: an `OnnxPolicy` (anything with its `evaluate`). Open it once and reuse it.
+    """
+    observation = observe(
+        ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params
+    )
+    output = policy.evaluate(observation)
+    action = int(output.actions[0])
+    acceleration, yaw_rate = PURSUER_ACTIONS[action]
+    return Decision(
+        action=action,
+        acceleration=float(acceleration),
+        yaw_rate=float(yaw_rate),
+        q_values=output.q_values[0],
+        target_weights=None if output.target_weights is None else output.target_weights[0],
+    )

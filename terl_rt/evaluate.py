@@ -1,0 +1,261 @@
+"""Evaluate a policy on a scenario: success rate, travel time, collision ratio (world.md section 10).
+
+Episode k of an evaluation with seed s runs `Simulator(scenario, seed=s + k)`, so any
+episode can be run again alone. Each step the policy sees every active pursuer's
+observation in one call; its greedy actions are scattered to the [N] action vector by
+`Observation.pursuer_index` (collided pursuers get 0, which the simulator ignores).
+With `workers > 1` the episodes are spread over processes (spawn), each reopening the
+policy file; results (and logs) are the same as with one process, in episode order.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from terl_rt.episode_log import EpisodeLogWriter, StepRecord, policy_info
+from terl_rt.metrics import EpisodeMetrics
+from terl_rt.policy import ContractError, OnnxPolicy
+from terl_rt.scenario import Scenario
+from terl_rt.simulator import Simulator
+
+Progress = Callable[[int, EpisodeMetrics], None]
+"""Called after each finished episode with its index and metrics (in episode order)."""
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Means over the episodes of a scenario."""
+
+    success_rate: float
+    """fraction of episodes with every evader encircled."""
+    travel_time_s_mean: float
+    """s: mean episode duration (steps x 0.5 s)."""
+    travel_time_s_std: float
+    """s: population standard deviation of the duration."""
+    collision_ratio_mean: float
+    """mean of collided pursuers / pursuers."""
+    steps_mean: float
+    """mean decision steps per episode."""
+
+
+def summarize(per_episode: Sequence[EpisodeMetrics]) -> Summary:
+    """Means (and the travel time's spread) over episodes; NaN for no episodes."""
+    if not per_episode:
+        nan = float("nan")
+        return Summary(nan, nan, nan, nan, nan)
+    travel = np.array([m.travel_time_s for m in per_episode])
+    return Summary(
+        success_rate=float(np.mean([m.success for m in per_episode])),
+        travel_time_s_mean=float(travel.mean()),
+        travel_time_s_std=float(travel.std()),
+        collision_ratio_mean=float(np.mean([m.collision_ratio for m in per_episode])),
+        steps_mean=float(np.mean([m.steps for m in per_episode])),
+    )
+
+
+@dataclass(frozen=True)
+class ScenarioResult:
+    """A policy's results on one scenario."""
+
+    name: str
+    """scenario name."""
+    episodes: int
+    seed: int
+    """episode k ran with seed + k."""
+    max_steps: int
+    """the step limit in force."""
+    success_rate: float
+    travel_time_s_mean: float
+    travel_time_s_std: float
+    collision_ratio_mean: float
+    steps_mean: float
+    wall_s: float
+    """s: wall-clock time of the whole evaluation."""
+    per_episode: tuple[EpisodeMetrics, ...]
+
+    def to_dict(self, per_episode: bool = False) -> dict:
+        """The JSON row of `terl-rt eval --json`; `per_episode` adds every episode's metrics."""
+        row = {
+            "name": self.name,
+            "episodes": self.episodes,
+            "success_rate": self.success_rate,
+            "travel_time_s_mean": self.travel_time_s_mean,
+            "travel_time_s_std": self.travel_time_s_std,
+            "collision_ratio_mean": self.collision_ratio_mean,
+            "steps_mean": self.steps_mean,
+            "wall_s": self.wall_s,
+        }
+        if per_episode:
+            row["per_episode"] = [m.to_dict() for m in self.per_episode]
+        return row
+
+
+def run_episode(
+    policy: OnnxPolicy,
+    scenario: Scenario,
+    seed: int,
+    on_step: Callable[[StepRecord], None] | None = None,
+) -> EpisodeMetrics:
+    """Run one episode of `Simulator(scenario, seed)` with the policy's greedy actions.
+
+    `on_step` receives a StepRecord for the state after reset (step 0) and after each step.
+    """
+    simulator = Simulator(scenario, seed=seed)
+    observation = simulator.reset()
+    if on_step is not None:
+        on_step(StepRecord(step=0, state=simulator.state()))
+    step = 0
+    while not simulator.done:
+        output = policy.evaluate(observation)
+        actions = np.zeros(scenario.pursuers, np.int64)
+        actions[observation.pursuer_index] = output.actions
+        decided = observation.pursuer_index
+        observation, info = simulator.step(actions)
+        step += 1
+        if on_step is not None:
+            on_step(StepRecord(
+                step=step, state=simulator.state(), pursuer_actions=actions, decided=decided,
+                target_weights=output.target_weights, info=info,
+            ))
+    return simulator.metrics()
+
+
+# --- worker processes ------------------------------------------------------------------
+
+_worker_policy: OnnxPolicy | None = None
+_worker_stop = None
+
+
+class _Stopped(Exception):
+    """The parent asked the workers to stop (it was interrupted)."""
+
+
+def _init_worker(path: str, threads: int | None, sha256: str, stop) -> None:
+    global _worker_policy, _worker_stop
+    # Ctrl-C reaches the whole process group: the parent handles it and sets `stop`,
+    # which the workers check every step (killing them could leave a result half sent).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _worker_stop = stop
+    _worker_policy = OnnxPolicy(path, threads=threads)
+    if _worker_policy.sha256 != sha256:
+        raise ContractError(f"{path}: the policy file changed on disk during the evaluation")
+
+
+def _worker_episode(scenario: Scenario, seed: int, record: bool) -> tuple[EpisodeMetrics, list[StepRecord]]:
+    records: list[StepRecord] = []
+
+    def on_step(step: StepRecord) -> None:
+        if _worker_stop.is_set():
+            raise _Stopped
+        if record:
+            records.append(step)
+
+    metrics = run_episode(_worker_policy, scenario, seed, on_step)
+    return metrics, records
+
+
+# --- evaluation ---------------------------------------------------------------------
+
+
+def evaluate(
+    policy: OnnxPolicy | str | os.PathLike,
+    scenario: Scenario,
+    episodes: int,
+    seed: int,
+    max_steps: int | None = None,
+    workers: int = 1,
+    log_path: str | os.PathLike | EpisodeLogWriter | None = None,
+    progress: Progress | None = None,
+    threads: int | None = None,
+) -> ScenarioResult:
+    """Evaluate `policy` on `episodes` episodes of `scenario`; episode k uses seed + k.
+
+    max_steps overrides the scenario's step limit. workers > 1 runs episodes in that many
+    spawned processes. threads: onnxruntime intra-op threads of a policy given as a path
+    and of each worker's policy (workers default to 1). log_path: an MCAP file to write every step to (see terl_rt.episode_log),
+    or an open EpisodeLogWriter to append to (the caller closes it). Episodes are logged
+    and reported to `progress` in episode order as they finish.
+    """
+    if isinstance(policy, (str, os.PathLike)):
+        policy = OnnxPolicy(policy, threads=threads)
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if max_steps is not None:
+        scenario = scenario.replace(max_steps=max_steps)
+
+    owns_log = log_path is not None and not isinstance(log_path, EpisodeLogWriter)
+    log = EpisodeLogWriter(Path(log_path), policy_info(policy)) if owns_log else log_path
+    start = time.perf_counter()
+    per_episode: list[EpisodeMetrics] = []
+
+    def finished(index: int, metrics: EpisodeMetrics) -> None:
+        per_episode.append(metrics)
+        if progress is not None:
+            progress(index, metrics)
+
+    try:
+        workers = min(workers, episodes)
+        if workers == 1:
+            for k in range(episodes):
+                if log is not None:
+                    log.begin_episode(scenario, seed + k, k)
+                metrics = run_episode(policy, scenario, seed + k, log.write_step if log is not None else None)
+                if log is not None:
+                    log.end_episode(metrics)
+                finished(k, metrics)
+        else:
+            _evaluate_in_workers(policy, scenario, episodes, seed, workers, threads, log, finished)
+    finally:
+        if owns_log:
+            log.close()
+
+    summary = summarize(per_episode)
+    return ScenarioResult(
+        name=scenario.name, episodes=episodes, seed=seed, max_steps=scenario.max_steps,
+        **asdict(summary), wall_s=time.perf_counter() - start, per_episode=tuple(per_episode),
+    )
+
+
+def _evaluate_in_workers(
+    policy: OnnxPolicy,
+    scenario: Scenario,
+    episodes: int,
+    seed: int,
+    workers: int,
+    threads: int | None,
+    log: EpisodeLogWriter | None,
+    finished: Callable[[int, EpisodeMetrics], None],
+) -> None:
+    """Run the episodes in `workers` spawned processes; log and report them in order."""
+    context = get_context("spawn")
+    stop = context.Event()
+    init = (str(policy.path), 1 if threads is None else threads, policy.sha256, stop)
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=init)
+    try:
+        futures = [pool.submit(_worker_episode, scenario, seed + k, log is not None) for k in range(episodes)]
+        for k, future in enumerate(futures):
+            metrics, records = future.result()
+            if log is not None:
+                log.begin_episode(scenario, seed + k, k)
+                for record in records:
+                    log.write_step(record)
+                log.end_episode(metrics)
+            finished(k, metrics)
+    except BaseException:
+        # Interrupted or failed: the workers stop within a step; what is logged stays logged.
+        stop.set()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown()
+

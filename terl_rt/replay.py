@@ -1,0 +1,129 @@
+"""Replay a logged episode: re-simulate it from its scenario, seed and actions, bit for bit.
+
+The simulator is deterministic (same scenario, seed and actions give the same episode),
+so every /state of a log must come out of the simulator again exactly: float64 fields
+are compared by their bits, not within a tolerance. The evaders' recorded actions and
+the episode's end are checked too.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from terl_rt.episode_log import STATE_FIELDS, EpisodeLogReader, LoggedStep
+from terl_rt.simulator import Simulator
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """The first difference between a log and the re-simulation."""
+
+    step: int
+    field: str
+    """a /state field, "evader_actions", "done" or "metrics"."""
+    detail: str
+
+
+@dataclass(frozen=True)
+class VerifyReport:
+    """Outcome of `verify` for one episode."""
+
+    path: Path
+    episode: int
+    scenario: str
+    seed: int
+    steps_checked: int
+    """logged steps compared (after the reset frame)."""
+    complete: bool
+    """the logged episode reached its end (False: cut off, checked as far as it goes)."""
+    mismatch: Mismatch | None
+
+    @property
+    def ok(self) -> bool:
+        return self.mismatch is None
+
+    def format(self) -> str:
+        """One line, e.g. "episode 0 (small-11, seed 0): ok, 57 steps bit-identical"."""
+        head = f"episode {self.episode} ({self.scenario}, seed {self.seed})"
+        if self.mismatch is not None:
+            m = self.mismatch
+            return f"{head}: MISMATCH at step {m.step}, {m.field}: {m.detail}"
+        tail = "" if self.complete else " (the log stops there: the episode was cut off)"
+        return f"{head}: ok, {self.steps_checked} steps bit-identical{tail}"
+
+    def to_dict(self) -> dict:
+        return {
+            "episode": self.episode, "scenario": self.scenario, "seed": self.seed,
+            "steps_checked": self.steps_checked, "complete": self.complete, "ok": self.ok,
+            "mismatch": None if self.mismatch is None else {
+                "step": self.mismatch.step, "field": self.mismatch.field, "detail": self.mismatch.detail,
+            },
+        }
+
+
+def _first_difference(recorded: np.ndarray, simulated: np.ndarray) -> str | None:
+    """None when the arrays are identical bit for bit, else where and how they differ."""
+    simulated = np.asarray(simulated)
+    if recorded.shape != simulated.shape:
+        return f"shape {recorded.shape} recorded, {simulated.shape} simulated"
+    if recorded.dtype == simulated.dtype == np.float64:
+        differs = recorded.view(np.uint64) != simulated.view(np.uint64)  # -0.0 vs 0.0 and NaNs count too
+    else:
+        differs = recorded != simulated
+    if not differs.any():
+        return None
+    where = tuple(int(i) for i in np.argwhere(differs)[0])
+    label = f"[{', '.join(map(str, where))}]" if where else ""
+    a, b = recorded[where], simulated[where]
+    return f"{label} recorded {a!r}, simulated {b!r}"
+
+
+def _compare_state(step: LoggedStep, simulated: dict[str, np.ndarray]) -> Mismatch | None:
+    recorded = step.state
+    for name in STATE_FIELDS:
+        problem = _first_difference(np.asarray(recorded[name]), np.asarray(simulated[name]))
+        if problem is not None:
+            return Mismatch(step.step, name, problem)
+    return None
+
+
+def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
+    """Re-simulate episode `episode` (file order) of the log at `path` and compare every
+    recorded state with the simulator's, bit for bit; the report names the first mismatch."""
+    reader = EpisodeLogReader(path)
+    entry = reader.episode(episode)
+    simulator = Simulator(entry.scenario, seed=entry.seed)
+    simulator.reset()
+    mismatch: Mismatch | None = None
+    checked = 0
+    last_step = -1
+    for step in reader.steps(episode):
+        last_step = step.step
+        if step.step > 0:
+            if simulator.done:
+                mismatch = Mismatch(step.step, "done", "the log goes on after the simulated episode ended")
+                break
+            _, info = simulator.step(step.pursuer_actions)
+            problem = _first_difference(step.evader_actions, info.evader_actions)
+            if problem is not None:
+                mismatch = Mismatch(step.step, "evader_actions", problem)
+                break
+            checked += 1
+        mismatch = _compare_state(step, simulator.state())
+        if mismatch is not None:
+            break
+    if mismatch is None and entry.complete:
+        if not simulator.done:
+            mismatch = Mismatch(last_step, "done", "the log ends here but the simulated episode goes on")
+        elif simulator.metrics() != entry.metrics:
+            mismatch = Mismatch(
+                last_step, "metrics", f"recorded {entry.metrics.to_dict()}, simulated {simulator.metrics().to_dict()}"
+            )
+    return VerifyReport(
+        path=Path(path), episode=episode, scenario=entry.scenario.name, seed=entry.seed,
+        steps_checked=checked, complete=entry.complete, mismatch=mismatch,
+    )

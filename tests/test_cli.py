@@ -1,0 +1,225 @@
+"""The terl-rt command line, driven through click's CliRunner."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from onnx_models import write_broken_policy, write_random_bytes, write_test_policy
+from PIL import Image
+from tiny_worlds import capture_scenario
+
+import terl_rt.cli.options
+from terl_rt.cli.main import cli
+
+ROW_KEYS = {
+    "name", "episodes", "success_rate", "travel_time_s_mean", "travel_time_s_std",
+    "collision_ratio_mean", "steps_mean", "wall_s",
+}
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("cli")
+    scenario_file = folder / "capture.json"
+    capture_scenario(max_steps=6).to_file(scenario_file)
+    return {
+        "folder": folder,
+        "policy": write_test_policy(folder / "linear.onnx"),
+        "scenario": scenario_file,
+    }
+
+
+@pytest.fixture(scope="module")
+def log(files) -> Path:
+    """An MCAP log of two episodes of the capture scenario, written by `terl-rt eval --log`."""
+    path = files["folder"] / "eval.mcap"
+    result = invoke("eval", "--policy", files["policy"], "--scenario-file", files["scenario"],
+                    "--episodes", "2", "--log", path)
+    assert result.exit_code == 0, result.output
+    return path
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(arg) for arg in args])
+
+
+def test_eval_prints_a_table_per_scenario(files):
+    result = invoke("eval", "--policy", files["policy"], "--scenario", "small-11", "--scenario", "small-15",
+                    "--episodes", "2", "--max-steps", "5")
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    assert "travel time (s)" in lines[1] and "success" in lines[1]
+    assert lines[2].split()[:2] == ["small-11", "2"] and lines[3].split()[:2] == ["small-15", "2"]
+    assert "±" in lines[2]
+
+
+def test_eval_json_is_one_object_with_the_documented_keys(files):
+    result = invoke("eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "2",
+                    "--max-steps", "4", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)  # the whole of stdout is one object
+    assert set(out) == {"policy", "scenarios"}
+    assert out["policy"]["name"] == "linear-test"
+    (row,) = out["scenarios"]
+    assert set(row) == ROW_KEYS
+    assert (row["name"], row["episodes"], row["steps_mean"]) == ("small-11", 2, 4.0)
+
+
+def test_eval_reads_a_scenario_file_and_reports_progress_on_stderr(files):
+    result = invoke("eval", "--policy", files["policy"], "--scenario-file", files["scenario"],
+                    "--episodes", "1", "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["scenarios"][0]["name"] == "tiny-capture"
+    assert "tiny-capture" in result.stderr
+
+
+def test_eval_with_two_workers_matches_one(files):
+    common = ("eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "2",
+              "--max-steps", "6", "--json")
+    one = json.loads(invoke(*common).stdout)["scenarios"][0]
+    two = json.loads(invoke(*common, "--workers", "2").stdout)["scenarios"][0]
+    for key in ROW_KEYS - {"wall_s"}:
+        assert one[key] == two[key], key
+
+
+def test_eval_without_the_default_policy_says_to_pass_one(monkeypatch, tmp_path):
+    monkeypatch.setattr(terl_rt.cli.options, "DEFAULT_POLICY", Path("exported") / "absent-policy.onnx")
+    monkeypatch.chdir(tmp_path)
+    result = invoke("eval", "--episodes", "1")
+    assert result.exit_code == 2
+    assert result.stderr.strip() == "Error: no policy at exported/absent-policy.onnx yet; pass --policy"
+
+
+def test_info_prints_metadata_and_the_contract_report(files):
+    result = invoke("info", files["policy"])
+    assert result.exit_code == 0, result.output
+    assert "terl.model = linear-test" in result.stdout
+    assert "[pass] input 'ego': float32 [B, 4]" in result.stdout
+    assert "[fail]" not in result.stdout
+
+
+def test_info_json(files):
+    out = json.loads(invoke("info", files["policy"], "--json").stdout)
+    assert out["ok"] and out["metadata"]["terl.model"] == "linear-test" and len(out["sha256"]) == 64
+    assert {check["status"] for check in out["checks"]} == {"pass"}
+
+
+def test_info_on_a_contract_breaking_policy_shows_the_report_and_exits_2(files):
+    path = write_broken_policy(files["folder"] / "eight.onnx", "eight_actions")
+    result = invoke("info", path)
+    assert result.exit_code == 2
+    assert "[fail] output 'q_values' sizes" in result.stdout
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith("Error:")
+
+
+def test_replay_lists_the_episodes(log):
+    result = invoke("replay", log)
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.stdout.splitlines()[2:]]
+    assert [row[:4] for row in rows] == [["0", "tiny-capture", "0", "6"], ["1", "tiny-capture", "1", "6"]]
+
+
+def test_replay_episode_shows_its_events(log):
+    result = invoke("replay", log, "--episode", "1")
+    assert result.exit_code == 0, result.output
+    assert "capture      evader 0, pursuers [0, 1, 2]" in result.stdout
+    assert "collision    pursuer 3" in result.stdout
+
+
+def test_replay_verify_passes_on_a_real_log(log):
+    result = invoke("replay", log, "--verify")
+    assert result.exit_code == 0, result.output
+    assert result.stdout.count("bit-identical") == 2
+
+
+def test_replay_verify_json(log):
+    out = json.loads(invoke("replay", log, "--verify", "--episode", "0", "--json").stdout)
+    assert out["ok"] and out["episodes"][0]["steps_checked"] == 6
+
+
+def test_render_writes_png_and_gif(log, tmp_path):
+    for name in ("final.png", "episode.gif"):
+        result = invoke("render", log, "--episode", "1", "-o", tmp_path / name, "--every", "2")
+        assert result.exit_code == 0, result.output
+        with Image.open(tmp_path / name) as image:
+            assert image.format == name.split(".")[1].upper()
+    with Image.open(tmp_path / "episode.gif") as image:
+        assert image.n_frames == 4  # steps 0, 2, 4, 6
+
+
+def test_bench_policy_reports_ms_per_step(files):
+    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11",
+                    "--steps", "5", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["steps"] == 5 and out["rows_mean"] == 11 and out["ms_per_step"] > 0
+
+
+def test_bench_policy_table(files):
+    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11", "--steps", "3")
+    assert result.exit_code == 0, result.output
+    assert "ms per step" in result.stdout
+
+
+def _bad_inputs(files, log) -> dict[str, tuple]:
+    folder = files["folder"]
+    bad_json = folder / "bad.json"
+    bad_json.write_text("{ not json")
+    unknown_field = folder / "unknown.json"
+    unknown_field.write_text(json.dumps({"name": "x", "pursuers": 5, "speed": 3}))
+    truncated = folder / "truncated.mcap"
+    truncated.write_bytes(log.read_bytes()[:20])
+    corrupt = folder / "corrupt.mcap"
+    data = bytearray(log.read_bytes())
+    data[8] = 0x7F  # the header record's opcode
+    corrupt.write_bytes(bytes(data))
+    policy = files["policy"]
+    return {
+        "missing policy": (("eval", "--policy", folder / "absent.onnx"), "no policy file"),
+        "malformed policy": (("eval", "--policy", write_random_bytes(folder / "noise.onnx")), "not a readable ONNX model"),
+        "contract-breaking policy": (
+            ("eval", "--policy", write_broken_policy(folder / "v2.onnx", "wrong_contract_version")),
+            "terl.contract",
+        ),
+        "unknown scenario": (("eval", "--policy", policy, "--scenario", "huge-9000"), "unknown scenario 'huge-9000'"),
+        "two scenario sources": (("eval", "--policy", policy, "--scenario", "small-11", "--suite", "paper"), "only one of"),
+        "scenario file not JSON": (("eval", "--policy", policy, "--scenario-file", bad_json), "not valid JSON"),
+        "scenario file unknown field": (("eval", "--policy", policy, "--scenario-file", unknown_field), "speed: unknown field"),
+        "missing scenario file": (("eval", "--policy", policy, "--scenario-file", folder / "none.json"), "no such scenario file"),
+        "log in a missing folder": (("eval", "--policy", policy, "--episodes", "1", "--log", folder / "no" / "x.mcap"), "No such file"),
+        "info on noise": (("info", folder / "noise.onnx"), "not a readable ONNX model"),
+        "bench unknown scenario": (("bench", "policy", "--policy", policy, "--scenario", "nope"), "unknown scenario 'nope'"),
+        "missing log": (("replay", folder / "absent.mcap"), "no episode log"),
+        "truncated log": (("replay", truncated), "cut off"),
+        "corrupt log": (("replay", corrupt), "corrupt"),
+        "log that is a policy": (("replay", policy), "not an MCAP file"),
+        "absent episode": (("replay", log, "--episode", "5"), "no episode 5"),
+        "render absent episode": (("render", log, "--episode", "5", "-o", folder / "x.png"), "no episode 5"),
+        "render unknown format": (("render", log, "-o", folder / "x.bmp"), "unknown output format"),
+    }
+
+
+BAD_INPUTS = [
+    "missing policy", "malformed policy", "contract-breaking policy", "unknown scenario",
+    "two scenario sources", "scenario file not JSON", "scenario file unknown field", "missing scenario file",
+    "log in a missing folder", "info on noise", "bench unknown scenario", "missing log", "truncated log",
+    "corrupt log", "log that is a policy", "absent episode", "render absent episode", "render unknown format",
+]
+
+
+@pytest.mark.parametrize("case", BAD_INPUTS)
+def test_bad_input_exits_2_with_one_line(files, log, case):
+    args, message = _bad_inputs(files, log)[case]
+    result = invoke(*args)
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith("Error: ") and result.stderr.count("\n") == 1, result.stderr
+    assert message in result.stderr
+    assert "Traceback" not in result.output
+
+
+def test_debug_shows_the_exception(files):
+    result = CliRunner().invoke(cli, ["--debug", "eval", "--policy", str(files["folder"] / "absent.onnx")])
+    assert isinstance(result.exception, FileNotFoundError)

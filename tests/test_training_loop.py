@@ -1,0 +1,270 @@
+"""The training loop and its helpers: losses, schedules, curriculum, replay, config,
+checkpoint/resume/export round trip (policy.md section 2)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from terl_rt.observation import Observation
+from terl_rt.policy import OnnxPolicy
+from terl_rt.scenario import Scenario, curriculum_stage
+from terl_rt.simulator import Simulator
+from terl_rt.world import StepResult, World
+from training.__main__ import main
+from training.checkpoint import read_counters
+from training.config import Config, ConfigError, packaged_configs
+from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
+from training.replay import ReplayBuffer
+from training.train import (
+    METRICS_FILE,
+    build_learner,
+    curriculum_scenario,
+    learn,
+    observation_rows,
+    store,
+    train,
+)
+
+
+def tiny_config(**changes) -> Config:
+    """H=32, L=1, h=2 and short intervals: a run of a few thousand steps takes seconds."""
+    base = Config(
+        model="terl", hidden=32, layers=1, heads=2, total_steps=1600, num_envs=8,
+        buffer_size=20_000, learning_starts=400, target_network_frequency=400,
+        eval_frequency=800, eval_episodes=2, eval_max_steps=30,
+        log_frequency=400, checkpoint_frequency=800,
+    )
+    return base.replace(**changes)
+
+
+def random_rows(rows: int, evader_slots: int = 8, seed: int = 0) -> dict[str, np.ndarray]:
+    """Observation arrays of `rows` pursuers with random features and masks."""
+    rng = np.random.default_rng(seed)
+    mask = rng.random((rows, 1 + 5 + evader_slots + 5)) < 0.7
+    mask[:, 0] = True
+    return {
+        "ego": rng.normal(size=(rows, 4)).astype(np.float32),
+        "teammates": rng.normal(size=(rows, 5, 7)).astype(np.float32),
+        "evaders": rng.normal(size=(rows, evader_slots, 7)).astype(np.float32),
+        "obstacles": rng.normal(size=(rows, 5, 5)).astype(np.float32),
+        "mask": mask,
+    }
+
+
+# ---------------------------------------------------------------- losses and schedules
+def test_quantile_huber_loss_matches_hand_computed_case():
+    # One row, one quantile 0 at tau = 0.25, targets 2 and -0.5, kappa 1:
+    # u = 2:    Huber = 1 * (2 - 0.5) = 1.5,   weight |0.25 - 0| = 0.25 -> 0.375
+    # u = -0.5: Huber = 0.5 * 0.25 = 0.125,    weight |0.25 - 1| = 0.75 -> 0.09375
+    # mean over the 2 targets, sum over the 1 quantile: 0.234375.
+    loss = quantile_huber_loss(torch.tensor([[0.0]]), torch.tensor([[0.25]]), torch.tensor([[2.0, -0.5]]))
+    assert loss.item() == pytest.approx(0.234375)
+
+
+def test_quantile_huber_loss_sums_quantiles_and_averages_rows():
+    # Row 0: two quantiles 0 at tau 0.25, each the case above (0.234375): sum 0.46875.
+    # Row 1: quantiles 1 and 3 at tau 0.5, targets 1 and 1: u = 0 -> 0; u = -2 -> |0.5 - 1| * 1.5
+    # = 0.75 for both targets, mean 0.75; sum over quantiles 0.75. Mean of rows: 0.609375.
+    quantiles = torch.tensor([[0.0, 0.0], [1.0, 3.0]])
+    taus = torch.tensor([[0.25, 0.25], [0.5, 0.5]])
+    targets = torch.tensor([[2.0, -0.5], [1.0, 1.0]])
+    assert quantile_huber_loss(quantiles, taus, targets).item() == pytest.approx(0.609375)
+
+
+def test_huber_is_quadratic_inside_kappa_and_linear_outside():
+    errors = torch.tensor([-3.0, -0.5, 0.0, 0.5, 3.0])
+    assert huber(errors, 1.0).tolist() == pytest.approx([2.5, 0.125, 0.0, 0.125, 2.5])
+    assert huber(torch.tensor([3.0]), 2.0).item() == pytest.approx(2.0 * (3.0 - 1.0))
+
+
+def test_quantile_target_bootstraps_the_best_mean_action_and_stops_at_done():
+    # Action 1 has the larger mean (2 > 1.5) though action 0 has the larger first quantile.
+    next_quantiles = torch.tensor([[[3.0, 1.0], [0.0, 3.0]]] * 2)  # [R=2, N'=2, A=2]
+    targets = quantile_td_target(torch.tensor([1.0, 1.0]), torch.tensor([0.0, 1.0]), next_quantiles, 0.5)
+    assert targets.tolist() == [[1.5, 2.5], [1.0, 1.0]]
+
+
+def test_td_target_bootstraps_the_max_and_stops_at_done():
+    next_q = torch.tensor([[1.0, 4.0], [1.0, 4.0]])
+    assert td_target(torch.tensor([2.0, 2.0]), torch.tensor([0.0, 1.0]), next_q, 0.5).tolist() == [4.0, 2.0]
+
+
+def test_epsilon_falls_linearly_over_the_first_quarter_then_stays():
+    duration = 0.25 * 1000
+    assert linear_schedule(0.6, 0.05, duration, 0) == pytest.approx(0.6)
+    assert linear_schedule(0.6, 0.05, duration, 125) == pytest.approx(0.325)
+    assert linear_schedule(0.6, 0.05, duration, 250) == pytest.approx(0.05)
+    assert linear_schedule(0.6, 0.05, duration, 900) == pytest.approx(0.05)
+
+
+def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
+    # Published: stages from 0, 2 M, 4 M, 5 M, 6 M of 7 M steps.
+    for step in (0, 1_999_999, 2_000_000, 4_500_000, 6_999_999):
+        assert curriculum_scenario(step, 7_000_000) == curriculum_stage(step)
+    # A 7,000-step run: boundaries at 2,000, 4,000, 5,000, 6,000.
+    names = {step: curriculum_scenario(step, 7_000).name for step in (0, 1999, 2000, 3999, 4000, 5000, 6000, 6999)}
+    assert names == {
+        0: "curriculum-1", 1999: "curriculum-1", 2000: "curriculum-2", 3999: "curriculum-2",
+        4000: "curriculum-3", 5000: "curriculum-4", 6000: "curriculum-5", 6999: "curriculum-5",
+    }
+    # 1,000 steps: stage 2 starts at 2/7 * 1000 = 285.7, so step 286.
+    assert curriculum_scenario(285, 1000).name == "curriculum-1"
+    assert curriculum_scenario(286, 1000).name == "curriculum-2"
+
+
+# ---------------------------------------------------------------- replay
+def test_replay_buffer_samples_compact_rows_with_the_stored_shapes():
+    buffer = ReplayBuffer(100, evader_slots=8)
+    rows = random_rows(10)
+    buffer.add(rows, np.arange(10) % 9, np.ones(10), random_rows(10, seed=1), np.zeros(10, bool))
+    assert len(buffer) == 10
+    assert buffer.actions.dtype == np.uint8 and buffer.observations["mask"].dtype == np.bool_
+    batch = buffer.sample(32, np.random.default_rng(0))
+    assert batch.observations["ego"].shape == (32, 4)
+    assert batch.observations["teammates"].shape == (32, 5, 7)
+    assert batch.next_observations["evaders"].shape == (32, 8, 7)
+    assert batch.observations["obstacles"].shape == (32, 5, 5)
+    assert batch.observations["mask"].shape == (32, 19) and batch.observations["mask"].dtype == np.bool_
+    assert batch.actions.shape == (32,) and batch.actions.dtype == np.int64
+    assert batch.rewards.dtype == np.float32 and batch.dones.dtype == np.float32
+
+
+def test_replay_buffer_wraps_around_overwriting_the_oldest_rows():
+    buffer = ReplayBuffer(5, evader_slots=8)
+    for start in (0, 3):  # rows 0..2, then 3..6: rows 5 and 6 land in slots 0 and 1
+        buffer.add(random_rows(3), np.zeros(3, int), np.arange(start, start + 3), random_rows(3), np.zeros(3, bool))
+    assert len(buffer) == 5 and buffer.position == 1
+    assert buffer.rewards.tolist() == [5, 1, 2, 3, 4]
+    buffer.add(random_rows(7), np.zeros(7, int), np.arange(10, 17), random_rows(7), np.zeros(7, bool))
+    # Only the last 5 of 7 rows are kept, written from slot 1 on.
+    assert sorted(buffer.rewards.tolist()) == [12, 13, 14, 15, 16] and buffer.position == 1
+
+
+def test_replay_buffer_rejects_rows_of_another_layout():
+    buffer = ReplayBuffer(10, evader_slots=8)
+    with pytest.raises(ValueError, match="evaders must have shape"):
+        buffer.add(random_rows(2, evader_slots=14), np.zeros(2, int), np.zeros(2), random_rows(2), np.zeros(2, bool))
+
+
+def test_stored_transition_is_done_when_the_pursuer_collided_or_its_episode_ended():
+    # Two worlds of three pursuers; pursuer (0, 2) was inactive. (0, 1) collides; world 1 is truncated.
+    zeros = lambda *shape: np.zeros((2, 3) + shape, np.float32)  # noqa: E731
+    observation = Observation(
+        ego=zeros(4), teammates=zeros(5, 7), evaders=zeros(8, 7), obstacles=zeros(5, 5),
+        mask=np.ones((2, 3, 19), bool), pursuer_index=np.zeros((2, 3), np.int64),
+    )
+    acted = np.array([[True, True, False], [True, True, True]])
+    result = StepResult(
+        reward=np.arange(6.0).reshape(2, 3), reward_terms=np.zeros((2, 3, 7)), acted=acted,
+        collided=np.array([[False, True, False], [False, False, False]]),
+        captured=np.zeros((2, 1), bool), pursuer_target=np.full((2, 3), -1),
+        evader_actions=np.zeros((2, 1), np.int64), terminated=np.array([False, False]),
+        truncated=np.array([False, True]), success=np.array([False, False]),
+    )
+    rows = np.flatnonzero(acted)
+    buffer = ReplayBuffer(10, evader_slots=8)
+    store(buffer, rows, observation_rows(observation, rows), np.full((2, 3), 4), observation, result)
+    assert buffer.dones[:5].tolist() == [False, True, True, True, True]
+    assert buffer.rewards[:5].tolist() == [0, 1, 3, 4, 5]
+
+
+# ---------------------------------------------------------------- config
+def test_every_model_has_a_packaged_config_with_the_published_settings():
+    assert set(packaged_configs()) == {"terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts"}
+    for name in packaged_configs():
+        config = Config.for_model(name)
+        assert config.model == name and config.hidden == 256
+        assert (config.gamma, config.learning_rate, config.batch_size) == (0.99, 1e-4, 128)
+        assert (config.total_steps, config.buffer_size, config.learning_starts) == (7_000_000, 1_000_000, 3000)
+    assert (Config.for_model("terl").layers, Config.for_model("terl").heads) == (4, 8)
+
+
+def test_config_file_with_an_unknown_key_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({"model": "terl", "learning_rte": 1e-3}))
+    with pytest.raises(ConfigError, match="learning_rte"):
+        Config.from_file(path)
+
+
+def test_config_rejects_a_wrong_type_and_a_bad_value():
+    with pytest.raises(ConfigError, match="batch_size"):
+        Config.from_dict({"batch_size": "128"})
+    with pytest.raises(ConfigError, match="heads"):
+        Config(hidden=30, heads=8)
+
+
+# ---------------------------------------------------------------- learning
+def test_network_overfits_a_tiny_fixed_batch():
+    # Real transitions of curriculum-3, a frozen target: the loss must fall a long way.
+    world = World(Scenario.preset("curriculum-3"), num_envs=4, seed=3)
+    observation = world.reset()
+    buffer = ReplayBuffer(1000, evader_slots=8)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        rows = np.flatnonzero(world.state.pursuer_active)
+        states = observation_rows(observation, rows)
+        actions = rng.integers(0, 9, world.state.pursuer_active.shape)
+        observation, result = world.step(actions)
+        store(buffer, rows, states, actions, observation, result)
+    batch = buffer.sample(32, rng)
+    config = tiny_config(learning_rate=1e-3, max_grad_norm=10.0)
+    torch.manual_seed(0)
+    model, target, optimizer = build_learner(config)  # the target is never synced here
+    losses = [learn(model, target, optimizer, batch, config) for _ in range(200)]
+    assert np.mean(losses[-10:]) < 0.2 * np.mean(losses[:10])
+
+
+# ---------------------------------------------------------------- end to end
+def test_train_checkpoint_resume_export_and_act(tmp_path):
+    config_file = tmp_path / "tiny.json"
+    tiny_config(total_steps=1600).to_file(config_file)
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "2"]) == 0
+    first = read_counters(out)
+    assert first.env_step == 1600 and first.updates > 0
+    assert first.stages == [f"curriculum-{k}" for k in range(1, 6)]
+
+    # Resume for 800 more steps: counters continue, the refill is logged.
+    assert main(["train", "--resume", str(out), "--total-steps", "2400", "--quiet"]) == 0
+    second = read_counters(out)
+    assert second.env_step == 2400 and second.updates > first.updates
+    records = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]
+    assert any(r["kind"] == "resume" and "refilled" in r["note"] for r in records)
+    assert records[-1]["kind"] == "train" and records[-1]["eval"]["episodes"] == 2
+
+    onnx_path = tmp_path / "exported" / "tiny.onnx"
+    assert main(["export", str(out), "-o", str(onnx_path)]) == 0
+    policy = OnnxPolicy(onnx_path)
+    assert policy.metadata["terl.training_steps"] == "2400"
+    assert policy.metadata["terl.trained_on"] == "curriculum-1..curriculum-5"
+    simulator = Simulator(Scenario.preset("curriculum-1"), seed=0)
+    actions = policy.act(simulator.reset())
+    assert actions.shape == (3,) and ((0 <= actions) & (actions < 9)).all()
+    simulator.step(actions)
+
+
+def test_dqn_trains_and_exports(tmp_path):
+    config = tiny_config(model="dqn", layers=0, heads=0, total_steps=800, eval_frequency=0)
+    counters = train(config, tmp_path / "dqn", show_progress=False)
+    assert counters.env_step == 800 and counters.updates == (800 - 400) // 4
+    assert main(["export", str(tmp_path / "dqn" / "model.safetensors"), "-o", str(tmp_path / "dqn.onnx")]) == 0
+    assert OnnxPolicy(tmp_path / "dqn.onnx").name == "dqn"
+
+
+def test_train_refuses_to_overwrite_a_checkpoint(tmp_path, capsys):
+    config = tiny_config(total_steps=80, learning_starts=0, eval_frequency=0)
+    train(config, tmp_path, show_progress=False)
+    assert main(["train", "--model", "terl", "--out", str(tmp_path)]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_bench_prints_rollout_and_update_rates(tmp_path, capsys):
+    config_file = tmp_path / "tiny.json"
+    tiny_config().to_file(config_file)
+    assert main(["bench", "--config", str(config_file), "--seconds", "0.05"]) == 0
+    printed = capsys.readouterr().out
+    assert "curriculum-5" in printed and "updates/s at batch 128" in printed and "estimated wall clock" in printed

@@ -1,0 +1,183 @@
+"""Checkpoints of a training run, and the ONNX export of one.
+
+A checkpoint is a folder (the run's output folder) holding the last save:
+- model.safetensors, target.safetensors: online and target network weights;
+- optimizer.pt: the Adam state dict (torch.save, read back with weights_only=True);
+- config.json: the `Config` of the run;
+- state.json: counters and the Python, NumPy and torch RNG states, written last,
+  so a folder with a state.json holds a complete checkpoint.
+Nothing here unpickles arbitrary objects.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+
+from training.config import Config
+from training.export import export_onnx
+from training.networks import QNetwork, build_network
+
+FORMAT_VERSION = 1
+"""Version of the checkpoint layout, stored in state.json."""
+MODEL_FILE = "model.safetensors"
+TARGET_FILE = "target.safetensors"
+OPTIMIZER_FILE = "optimizer.pt"
+CONFIG_FILE = "config.json"
+STATE_FILE = "state.json"
+
+
+@dataclass
+class Counters:
+    """How far a run has come; saved in state.json and continued on resume."""
+
+    env_step: int = 0
+    """environment steps taken (num_envs per batch step)."""
+    updates: int = 0
+    """gradient updates done."""
+    episodes: int = 0
+    """training episodes finished."""
+    wall_seconds: float = 0.0
+    """seconds spent training, summed over resumes."""
+    stages: list[str] = field(default_factory=list)
+    """scenarios trained on, in the order first met (e.g. curriculum-1, curriculum-2)."""
+
+
+def network_from_config(config: Config) -> QNetwork:
+    """The network a config describes (fresh weights)."""
+    return build_network(config.model, config.hidden, config.layers, config.heads)
+
+
+def rng_states(rng: np.random.Generator) -> dict[str, Any]:
+    """JSON-serialisable RNG states: Python `random`, the run's NumPy generator, torch CPU."""
+    version, internal, gauss = random.getstate()
+    return {
+        "python": [version, list(internal), gauss],
+        "numpy": rng.bit_generator.state,
+        "torch": torch.get_rng_state().tolist(),
+    }
+
+
+def restore_rng_states(states: dict[str, Any], rng: np.random.Generator) -> None:
+    """Inverse of `rng_states`: set Python's, `rng`'s and torch's generators."""
+    version, internal, gauss = states["python"]
+    random.setstate((version, tuple(internal), gauss))
+    rng.bit_generator.state = states["numpy"]
+    torch.set_rng_state(torch.tensor(states["torch"], dtype=torch.uint8))
+
+
+def _replace_file(path: Path, write) -> None:
+    """Write through a temporary name, then rename: a crash leaves the old file whole."""
+    temporary = path.with_name(path.name + ".tmp")
+    write(temporary)
+    os.replace(temporary, path)
+
+
+def save_checkpoint(
+    folder: str | Path,
+    config: Config,
+    model: QNetwork,
+    target: QNetwork,
+    optimizer: torch.optim.Optimizer,
+    counters: Counters,
+    rng: np.random.Generator,
+) -> Path:
+    """Write the checkpoint files into `folder` (created if needed) and return it."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    weights_metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
+    for name, network in ((MODEL_FILE, model), (TARGET_FILE, target)):
+        state = {key: value.detach().contiguous() for key, value in network.state_dict().items()}
+        _replace_file(folder / name, lambda path: save_file(state, str(path), metadata=weights_metadata))
+    _replace_file(folder / OPTIMIZER_FILE, lambda path: torch.save(optimizer.state_dict(), path))
+    _replace_file(folder / CONFIG_FILE, config.to_file)
+    state = {"format": FORMAT_VERSION, "counters": asdict(counters), "rng": rng_states(rng)}
+    _replace_file(folder / STATE_FILE, lambda path: path.write_text(json.dumps(state) + "\n"))
+    return folder
+
+
+def _checkpoint_folder(source: str | Path) -> Path:
+    """The folder of a checkpoint given as the folder or one of its files."""
+    source = Path(source)
+    folder = source.parent if source.is_file() else source
+    if not (folder / STATE_FILE).is_file():
+        raise FileNotFoundError(f"{source}: no checkpoint here (expected {folder / STATE_FILE})")
+    return folder
+
+
+def read_config(source: str | Path) -> Config:
+    """The config saved with a checkpoint (folder or one of its files)."""
+    return Config.from_file(_checkpoint_folder(source) / CONFIG_FILE)
+
+
+def read_counters(source: str | Path) -> Counters:
+    """The counters saved with a checkpoint."""
+    return Counters(**_read_state(_checkpoint_folder(source))["counters"])
+
+
+def _read_state(folder: Path) -> dict[str, Any]:
+    state = json.loads((folder / STATE_FILE).read_text())
+    if state.get("format") != FORMAT_VERSION:
+        raise ValueError(
+            f"{folder / STATE_FILE}: checkpoint format {state.get('format')}, expected {FORMAT_VERSION}"
+        )
+    return state
+
+
+def load_checkpoint(
+    source: str | Path,
+    model: QNetwork,
+    target: QNetwork,
+    optimizer: torch.optim.Optimizer,
+    rng: np.random.Generator,
+) -> Counters:
+    """Load weights, optimizer state and RNG states saved by `save_checkpoint`; return the counters."""
+    folder = _checkpoint_folder(source)
+    state = _read_state(folder)
+    model.load_state_dict(load_file(str(folder / MODEL_FILE)))
+    target.load_state_dict(load_file(str(folder / TARGET_FILE)))
+    optimizer.load_state_dict(torch.load(folder / OPTIMIZER_FILE, weights_only=True))
+    restore_rng_states(state["rng"], rng)
+    return Counters(**state["counters"])
+
+
+def load_network(source: str | Path) -> tuple[QNetwork, Config, Counters]:
+    """The online network of a checkpoint (eval mode), its config and counters."""
+    folder = _checkpoint_folder(source)
+    config = read_config(folder)
+    model = network_from_config(config)
+    model.load_state_dict(load_file(str(folder / MODEL_FILE)))
+    return model.eval(), config, read_counters(folder)
+
+
+def trained_on(stages: list[str]) -> str:
+    """The `terl.trained_on` text: "curriculum-1..curriculum-5" for a walked curriculum
+    (first and last stage met), else the scenario names joined by commas."""
+    if not stages:
+        return "untrained"
+    if len(stages) > 1 and all(name.startswith("curriculum-") for name in stages):
+        return f"{stages[0]}..{stages[-1]}"
+    return ",".join(stages)
+
+
+def export_checkpoint(source: str | Path, output: str | Path) -> Path:
+    """Export a checkpoint's online network as a contract-v1 ONNX policy at `output`.
+
+    Adds `terl.training_steps` (environment steps) and `terl.trained_on` to the
+    metadata; `export_onnx` checks parity with torch before returning.
+    """
+    model, config, counters = load_network(source)
+    metadata = {
+        "terl.training_steps": str(counters.env_step),
+        "terl.trained_on": trained_on(counters.stages),
+        "terl.training_config": json.dumps(config.to_dict(), sort_keys=True),
+    }
+    return export_onnx(model, output, metadata)

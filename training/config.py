@@ -1,0 +1,225 @@
+"""The training configuration: one dataclass, one documented field per setting.
+
+Defaults are the published settings (policy.md section 2) for TERL. Step counts
+are environment steps: one batch step of `num_envs` vectorised environments is
+`num_envs` environment steps, the way the paper counts the steps of its single
+environment. Each environment step stores one transition per active pursuer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from terl_rt.scenario import PRESETS
+
+
+class ConfigError(ValueError):
+    """A configuration that is malformed; the message names the field (or file)."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything one training run needs, with the published defaults."""
+
+    # --- network
+    model: str = "terl"
+    """network registry name: terl, iqn, dqn, mean, terl-no-re or terl-no-ts."""
+    hidden: int = 256
+    """H: token and feature width."""
+    layers: int = 4
+    """L: transformer layers (0 for bodies without a transformer)."""
+    heads: int = 8
+    """h: attention heads, must divide H (0 for bodies without a transformer)."""
+
+    # --- run
+    seed: int = 1
+    """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python."""
+    threads: int = 2
+    """torch intra-op threads, set by the command-line entry point only."""
+    total_steps: int = 7_000_000
+    """length of training in environment steps (num_envs per batch step)."""
+    num_envs: int = 8
+    """B: environments stepped together; one batched forward acts for all their pursuers."""
+    curriculum: bool = True
+    """walk the five curriculum stages (world.md section 11), scaled to total_steps."""
+    scenario: str = "small-15"
+    """preset trained on when curriculum is false (ignored otherwise)."""
+
+    # --- learning (policy.md section 2)
+    gamma: float = 0.99
+    """discount factor per decision step (0.5 s), in [0, 1]."""
+    learning_rate: float = 1e-4
+    """Adam step size."""
+    batch_size: int = 128
+    """transitions (pursuer rows) per gradient update."""
+    max_grad_norm: float = 0.5
+    """global gradient-norm clip."""
+    buffer_size: int = 1_000_000
+    """replay capacity in pursuer transitions (about 1 KB each)."""
+    learning_starts: int = 3000
+    """environment steps collected before the first update (again after a resume)."""
+    train_frequency: int = 4
+    """environment steps per gradient update: a batch step of B envs runs the
+    updates whose multiples of train_frequency it crossed (B/4 on average)."""
+    target_network_frequency: int = 10_000
+    """environment steps between hard copies of the online network to the target."""
+    start_e: float = 0.6
+    """exploration probability at step 0, per pursuer."""
+    end_e: float = 0.05
+    """exploration probability after the decay."""
+    exploration_fraction: float = 0.25
+    """fraction of total_steps over which epsilon falls linearly from start_e to end_e."""
+    num_quantiles: int = 8
+    """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
+    num_target_quantiles: int = 8
+    """N': fractions sampled for the target quantiles (unused by dqn)."""
+    kappa: float = 1.0
+    """threshold of the (quantile) Huber loss, in return units."""
+
+    # --- evaluation, logging, checkpoints
+    eval_frequency: int = 100_000
+    """environment steps between greedy evaluations (0: never)."""
+    eval_episodes: int = 4
+    """episodes per evaluation, run as one batch on fixed seeds."""
+    eval_seed: int = 20_240
+    """seed of the evaluation episodes (the same episodes every time for a stage)."""
+    eval_max_steps: int = 1000
+    """decision steps before an evaluation episode is truncated (world.md section 10)."""
+    log_frequency: int = 10_000
+    """environment steps between records of metrics.jsonl."""
+    checkpoint_frequency: int = 100_000
+    """environment steps between checkpoints (one more is written at the end)."""
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+    # --- construction and serialisation
+    @staticmethod
+    def from_dict(data: Any, source: str = "config") -> Config:
+        """Build a config from a JSON object; unknown keys and wrong types are errors naming the key.
+
+        Missing keys take the defaults above.
+        """
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: must be a JSON object, got {type(data).__name__}")
+        types = typing.get_type_hints(Config)
+        unknown = sorted(set(data) - set(types))
+        if unknown:
+            raise ConfigError(
+                f"{source}: unknown key '{unknown[0]}' (known: {', '.join(field_names())})"
+            )
+        for key, value in data.items():
+            if not _has_type(value, types[key]):
+                raise ConfigError(
+                    f"{source}: '{key}' must be {types[key].__name__}, got {value!r}"
+                )
+        try:
+            return Config(**{key: types[key](value) for key, value in data.items()})
+        except ConfigError as error:
+            raise ConfigError(f"{source}: {error}") from None
+
+    @staticmethod
+    def from_file(path: str | Path) -> Config:
+        """Read a JSON config file (see `from_dict`)."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: no such config file") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ConfigError(f"{path}: not valid JSON: {error}") from None
+        return Config.from_dict(data, source=str(path))
+
+    @staticmethod
+    def for_model(model: str) -> Config:
+        """The packaged config training/configs/<model>.json (published defaults for that model)."""
+        names = packaged_configs()
+        if model not in names:
+            raise ConfigError(f"no packaged config for model '{model}'; expected one of {names}")
+        text = resources.files("training").joinpath("configs", f"{model}.json").read_text()
+        return Config.from_dict(json.loads(text), source=f"training/configs/{model}.json")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field by name (JSON-serialisable)."""
+        return dataclasses.asdict(self)
+
+    def to_file(self, path: str | Path) -> None:
+        """Write the config as an indented JSON object."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    def replace(self, **changes: Any) -> Config:
+        """A validated copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+
+def field_names() -> tuple[str, ...]:
+    """Config field names, in declaration order."""
+    return tuple(f.name for f in dataclasses.fields(Config))
+
+
+def packaged_configs() -> tuple[str, ...]:
+    """Model names with a config file under training/configs/."""
+    folder = resources.files("training").joinpath("configs")
+    names = (entry.name for entry in folder.iterdir())
+    return tuple(sorted(name[: -len(".json")] for name in names if name.endswith(".json")))
+
+
+def _has_type(value: Any, expected: type) -> bool:
+    """JSON value check: bool is not an int, an int is a valid float."""
+    if expected is bool:
+        return isinstance(value, bool)
+    if isinstance(value, bool):
+        return False
+    if expected is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, expected)
+
+
+def _validate(config: Config) -> None:
+    # Imported here: the registry pulls in torch, which `Config` users may not need yet.
+    from training.networks import network_classes
+
+    models = sorted(network_classes())
+    if config.model not in models:
+        raise ConfigError(f"model: unknown network '{config.model}'; expected one of {models}")
+    if config.scenario not in PRESETS:
+        raise ConfigError(f"scenario: unknown preset '{config.scenario}'; presets are {', '.join(PRESETS)}")
+    positive = (
+        "hidden", "threads", "total_steps", "num_envs", "batch_size", "buffer_size",
+        "train_frequency", "target_network_frequency", "num_quantiles",
+        "num_target_quantiles", "eval_episodes", "eval_max_steps", "log_frequency",
+        "checkpoint_frequency",
+    )
+    for name in positive:
+        if getattr(config, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
+    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed"):
+        if getattr(config, name) < 0:
+            raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
+    # A tiny probe tells transformer bodies (which record their layers) from the others.
+    if network_classes()[config.model](hidden=4, layers=1, heads=1).num_layers > 0:
+        for name in ("layers", "heads"):
+            if getattr(config, name) < 1:
+                raise ConfigError(
+                    f"{name}: model '{config.model}' has a transformer, needs >= 1, got {getattr(config, name)}"
+                )
+        if config.hidden % config.heads:
+            raise ConfigError(f"heads: {config.heads} must divide hidden {config.hidden}")
+    for name in ("gamma", "start_e", "end_e", "exploration_fraction"):
+        if not 0.0 <= getattr(config, name) <= 1.0:
+            raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
+    for name in ("learning_rate", "max_grad_norm", "kappa"):
+        if not getattr(config, name) > 0.0:
+            raise ConfigError(f"{name}: must be > 0, got {getattr(config, name)}")
+    if config.batch_size > config.buffer_size:
+        raise ConfigError(
+            f"batch_size: {config.batch_size} exceeds buffer_size {config.buffer_size}"
+        )

@@ -1,0 +1,528 @@
+"""Training of a pursuer Q-network: IQN (or DQN) with a shared network for every pursuer.
+
+Centralised training, decentralised execution (policy.md section 2): B worlds are
+stepped together; one batched forward of the online network chooses the action of
+every active pursuer of every world (epsilon-greedy per pursuer), and every active
+pursuer's transition goes into one replay buffer.
+
+Counting: an environment step is one step of one world, so a batch step is B
+environment steps; `Config.total_steps`, `learning_starts`, `train_frequency`,
+`target_network_frequency` and the logging, evaluation and checkpoint intervals
+are all in environment steps. A batch step runs one gradient update per multiple
+of `train_frequency` it crosses, which keeps the published ratio (one update of
+128 rows per 4 environment steps) for any B.
+
+metrics.jsonl holds one JSON object a line, told apart by "kind":
+- "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
+  episodes, updates, stage, epsilon, loss (mean since the last record), success_rate,
+  mean_return (per pursuer: the episode's summed rewards / N), collision_ratio and
+  episode_steps over the last 100 episodes, steps_per_second (this session),
+  wall_seconds (all sessions), eval (the `evaluate` dict, or null);
+- "stage": env_step and the curriculum stage that starts there;
+- "resume": env_step and a note that the replay buffer is being refilled.
+
+`train` is the loop, read top to bottom; the helpers before it do one thing each.
+`benchmark` times the loop's two halves (rollout, update) apart.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import sys
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import torch
+
+from terl_rt.actions import NUM_PURSUER_ACTIONS
+from terl_rt.observation import Observation
+from terl_rt.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
+from terl_rt.world import StepResult, World
+from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
+from training.config import Config
+from training.export import INPUT_NAMES
+from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
+from training.networks import QNetwork
+from training.replay import ReplayBatch, ReplayBuffer
+
+CURRICULUM_LENGTH = 7_000_000
+"""Environment steps of the published curriculum (world.md section 11); runs of other
+lengths scale its stage boundaries, so stages start at 0, 2/7, 4/7, 5/7, 6/7 of a run."""
+RECENT_EPISODES = 100
+"""Finished episodes behind the success rate and mean return of the progress line and log."""
+PROGRESS_SECONDS = 1.0
+"""Seconds between refreshes of the progress line."""
+METRICS_FILE = "metrics.jsonl"
+"""Name of the JSON-lines log in the output folder."""
+
+
+# ---------------------------------------------------------------- schedules
+def curriculum_scenario(env_step: int, total_steps: int) -> Scenario:
+    """The curriculum stage in force at `env_step` of a `total_steps` run (boundaries scaled)."""
+    return curriculum_stage(env_step * CURRICULUM_LENGTH // total_steps)
+
+
+def training_scenario(config: Config, env_step: int) -> Scenario:
+    """The scenario trained on at `env_step`: the scaled curriculum, or the fixed preset."""
+    if config.curriculum:
+        return curriculum_scenario(env_step, config.total_steps)
+    return Scenario.preset(config.scenario)
+
+
+def crossings(before: int, after: int, every: int) -> int:
+    """How many multiples of `every` lie in (before, after]: events due in a batch step."""
+    return after // every - before // every
+
+
+# ---------------------------------------------------------------- acting
+def observation_rows(observation: Observation, rows: np.ndarray) -> dict[str, np.ndarray]:
+    """Observation arrays [B, N, ...] flattened to [B * N, ...] and cut to `rows` [R]: [R, ...]."""
+    arrays = observation.as_inputs()
+    return {key: arrays[key].reshape((-1,) + arrays[key].shape[2:])[rows] for key in INPUT_NAMES}
+
+
+def as_tensors(arrays: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
+    """Observation arrays as torch tensors (no copy), in the network's call order."""
+    return tuple(torch.from_numpy(arrays[key]) for key in INPUT_NAMES)
+
+
+def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray:
+    """argmax of the eval-mode Q-values (fixed fractions, as the exported policy): [R] int64."""
+    if len(states["ego"]) == 0:
+        return np.zeros(0, np.int64)
+    model.eval()
+    with torch.inference_mode():
+        return model.q_values(*as_tensors(states)).argmax(dim=1).numpy()
+
+
+def act(
+    model: QNetwork, world: World, observation: Observation, epsilon: float, rng: np.random.Generator
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """Choose the actions of every active pursuer of every world in one forward.
+
+    Returns rows [R] (flat indices b * N + n of the active pursuers), their states
+    [R, ...] and the actions [B, N] int64 (0 for inactive pursuers). Each pursuer
+    explores on its own with probability `epsilon`.
+    """
+    active = world.state.pursuer_active
+    rows = np.flatnonzero(active)
+    states = observation_rows(observation, rows)
+    chosen = greedy_actions(model, states)
+    explore = rng.random(len(rows)) < epsilon
+    chosen[explore] = rng.integers(0, NUM_PURSUER_ACTIONS, int(explore.sum()))
+    actions = np.zeros(active.size, np.int64)
+    actions[rows] = chosen
+    return rows, states, actions.reshape(active.shape)
+
+
+def store(
+    buffer: ReplayBuffer,
+    rows: np.ndarray,
+    states: dict[str, np.ndarray],
+    actions: np.ndarray,
+    next_observation: Observation,
+    result: StepResult,
+) -> None:
+    """Add the step's transition of every pursuer that acted (rows from `act`).
+
+    done = the pursuer collided, or its episode terminated or hit the step limit
+    (policy.md section 2): such transitions are not bootstrapped.
+    """
+    ended = result.terminated | result.truncated
+    dones = result.collided | ended[:, None]
+    buffer.add(
+        states,
+        actions.ravel()[rows],
+        result.reward.ravel()[rows],
+        observation_rows(next_observation, rows),
+        dones.ravel()[rows],
+    )
+
+
+# ---------------------------------------------------------------- learning
+def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Config) -> torch.Tensor:
+    """Quantile Huber loss (IQN heads) or Huber TD loss (`dqn`) of a sampled batch, a scalar.
+
+    The online network runs as it is (train mode: dropout on); the target network,
+    in eval mode, gives r + gamma * (1 - done) * max_a mean_tau' Z_target(s', a).
+    """
+    states, next_states = as_tensors(batch.observations), as_tensors(batch.next_observations)
+    actions = torch.from_numpy(batch.actions)
+    rewards, dones = torch.from_numpy(batch.rewards), torch.from_numpy(batch.dones)
+    rows = len(actions)
+    if model.distributional:
+        taus = torch.rand(rows, config.num_quantiles)
+        quantiles = model(*states, taus).quantiles  # [R, N, A]
+        index = actions[:, None, None].expand(-1, config.num_quantiles, 1)
+        taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
+        with torch.no_grad():
+            next_quantiles = target(*next_states, torch.rand(rows, config.num_target_quantiles)).quantiles
+            targets = quantile_td_target(rewards, dones, next_quantiles, config.gamma)
+        return quantile_huber_loss(taken, taus, targets, config.kappa)
+    q_values = model(*states).quantiles[:, 0]  # [R, A]
+    taken = q_values.gather(1, actions[:, None]).squeeze(1)
+    with torch.no_grad():
+        targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], config.gamma)
+    return huber(taken - targets, config.kappa).mean()
+
+
+def build_learner(config: Config) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
+    """A fresh online network, its frozen eval-mode target copy and Adam on the online weights."""
+    model = network_from_config(config)
+    target = network_from_config(config)
+    target.load_state_dict(model.state_dict())
+    target.eval().requires_grad_(False)
+    return model, target, torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+
+
+def learn(
+    model: QNetwork,
+    target: QNetwork,
+    optimizer: torch.optim.Optimizer,
+    batch: ReplayBatch,
+    config: Config,
+) -> float:
+    """One Adam step on `td_loss` with the gradient norm clipped; returns the loss."""
+    model.train()
+    loss = td_loss(model, target, batch, config)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), config.max_grad_norm)
+    optimizer.step()
+    return loss.item()
+
+
+# ---------------------------------------------------------------- evaluation
+def evaluate(model: QNetwork, scenario: Scenario, config: Config) -> dict[str, Any]:
+    """Greedy episodes of `scenario` on fixed seeds, run as one batch.
+
+    `config.eval_episodes` worlds seeded with `config.eval_seed`, truncated after
+    `config.eval_max_steps` steps. Returns the scenario name, episodes, success
+    rate, mean travel time (s), mean collision ratio and mean per-pursuer return.
+    """
+    scenario = scenario.replace(max_steps=config.eval_max_steps)
+    world = World(scenario, num_envs=config.eval_episodes, seed=config.eval_seed)
+    observation = world.reset()
+    finished = np.zeros(world.num_envs, bool)
+    returns = np.zeros(world.num_envs)
+    outcomes = [None] * world.num_envs
+    while not finished.all():
+        # World.step refuses ended episodes, so finished worlds are restarted and ignored.
+        rows = np.flatnonzero(world.state.pursuer_active & ~finished[:, None])
+        actions = np.zeros(world.state.pursuer_active.size, np.int64)
+        actions[rows] = greedy_actions(model, observation_rows(observation, rows))
+        observation, result = world.step(actions.reshape(world.state.pursuer_active.shape))
+        returns += np.where(finished, 0.0, result.reward.sum(axis=1) / scenario.pursuers)
+        for env in np.flatnonzero(world.done & ~finished):
+            outcomes[env] = world.metrics(env)
+            finished[env] = True
+        if world.done.any():
+            observation = world.reset(world.done.copy())
+    return {
+        "scenario": scenario.name,
+        "episodes": len(outcomes),
+        "success_rate": float(np.mean([o.success for o in outcomes])),
+        "travel_time_s": float(np.mean([o.travel_time_s for o in outcomes])),
+        "collision_ratio": float(np.mean([o.collision_ratio for o in outcomes])),
+        "mean_return": float(returns.mean()),
+    }
+
+
+# ---------------------------------------------------------------- display and log
+class Progress:
+    """One status line on a text stream, rewritten in place with a carriage return."""
+
+    def __init__(self, enabled: bool, env_step: int = 0, stream: TextIO = sys.stderr) -> None:
+        self.enabled = enabled
+        self.stream = stream
+        self.last_time = time.perf_counter()
+        self.last_step = env_step
+        self.width = 0
+
+    def due(self) -> bool:
+        """True once PROGRESS_SECONDS have passed since the last refresh."""
+        return self.enabled and time.perf_counter() - self.last_time >= PROGRESS_SECONDS
+
+    def steps_per_second(self, env_step: int) -> float:
+        """Environment steps per second since the last refresh (and start a new window)."""
+        now = time.perf_counter()
+        rate = (env_step - self.last_step) / max(now - self.last_time, 1e-9)
+        self.last_time, self.last_step = now, env_step
+        return rate
+
+    def show(self, text: str) -> None:
+        if self.enabled:
+            self.stream.write("\r" + text.ljust(self.width))
+            self.stream.flush()
+            self.width = len(text)
+
+    def note(self, text: str) -> None:
+        """A line of its own, above the status line."""
+        if self.enabled:
+            self.stream.write("\r" + " " * self.width + "\r" + text + "\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.width:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def write_record(path: Path, record: dict[str, Any]) -> None:
+    """Append one JSON object as a line of the metrics log."""
+    with path.open("a") as log:
+        log.write(json.dumps(record) + "\n")
+
+
+def recent_means(recent: deque) -> dict[str, float | None]:
+    """Means over the recent episodes (None when there are none yet)."""
+    if not recent:
+        return {"success_rate": None, "mean_return": None, "collision_ratio": None, "episode_steps": None}
+    success, returns, collisions, steps = (np.mean(column) for column in zip(*recent))
+    return {
+        "success_rate": float(success),
+        "mean_return": float(returns),
+        "collision_ratio": float(collisions),
+        "episode_steps": float(steps),
+    }
+
+
+# ---------------------------------------------------------------- the loop
+def train(
+    config: Config,
+    out_dir: str | Path,
+    resume: str | Path | None = None,
+    show_progress: bool = True,
+) -> Counters:
+    """Train `config.model` for `config.total_steps` environment steps; return the final counters.
+
+    Writes metrics.jsonl and the checkpoint files (see training.checkpoint) into
+    `out_dir`. With `resume`, weights, optimizer, counters and RNG states come from
+    that checkpoint; the replay buffer is not saved, so it is refilled for
+    `learning_starts` environment steps before updates resume (logged).
+    The caller sets torch's thread count.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log_path = out_dir / METRICS_FILE
+
+    # --- seeding
+    random.seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+
+    # --- networks and optimiser
+    model, target, optimizer = build_learner(config)
+    counters = Counters()
+    learning_starts = config.learning_starts
+    if resume is not None:
+        counters = load_checkpoint(resume, model, target, optimizer, rng)
+        learning_starts = counters.env_step + config.learning_starts
+    progress = Progress(show_progress, counters.env_step)
+    if resume is not None:
+        note = (
+            f"resumed from {resume} at environment step {counters.env_step}; the replay buffer "
+            f"is not saved and is refilled for {config.learning_starts} environment steps "
+            "before updates resume"
+        )
+        write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
+        progress.note(note)
+
+    # --- environments and replay buffer
+    num_envs = config.num_envs
+    scenario = training_scenario(config, counters.env_step)
+    world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
+    observation = world.reset()
+    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
+    if scenario.name not in counters.stages:
+        counters.stages.append(scenario.name)
+    episode_returns = np.zeros(num_envs)
+    recent: deque = deque(maxlen=RECENT_EPISODES)
+    losses: list[float] = []
+    last_loss: float | None = None
+    session_start, session_step = time.perf_counter(), counters.env_step
+    wall_before = counters.wall_seconds
+
+    while counters.env_step < config.total_steps:
+        # --- curriculum: a new stage gets new worlds; episodes under way are dropped
+        stage = training_scenario(config, counters.env_step)
+        if stage.name != scenario.name:
+            scenario = stage
+            world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
+            observation = world.reset()
+            episode_returns[:] = 0.0
+            if scenario.name not in counters.stages:
+                counters.stages.append(scenario.name)
+            write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": scenario.name})
+            progress.note(f"environment step {counters.env_step}: stage {scenario.name}")
+
+        # --- collect: one batched forward for every active pursuer, epsilon-greedy each
+        epsilon = linear_schedule(
+            config.start_e, config.end_e, config.exploration_fraction * config.total_steps, counters.env_step
+        )
+        rows, states, actions = act(model, world, observation, epsilon, rng)
+        observation, result = world.step(actions)
+
+        # --- store (the next observation is the one before any reset)
+        store(buffer, rows, states, actions, observation, result)
+
+        # --- episode bookkeeping, then restart the ended worlds
+        episode_returns += result.reward.sum(axis=1) / scenario.pursuers
+        for env in np.flatnonzero(world.done):
+            outcome = world.metrics(env)
+            recent.append((outcome.success, episode_returns[env], outcome.collision_ratio, outcome.steps))
+            counters.episodes += 1
+        if world.done.any():
+            episode_returns[world.done] = 0.0
+            observation = world.reset(world.done.copy())
+        previous_step = counters.env_step
+        counters.env_step += num_envs
+
+        # --- learn: the updates due in this batch step, then the hard target copy
+        if counters.env_step >= learning_starts and len(buffer) >= config.batch_size:
+            # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
+            due = crossings(max(previous_step, learning_starts), counters.env_step, config.train_frequency)
+            for _ in range(due):
+                batch = buffer.sample(config.batch_size, rng)
+                last_loss = learn(model, target, optimizer, batch, config)
+                losses.append(last_loss)
+                counters.updates += 1
+            if crossings(previous_step, counters.env_step, config.target_network_frequency):
+                target.load_state_dict(model.state_dict())
+
+        # --- evaluate and log
+        finished = counters.env_step >= config.total_steps
+        counters.wall_seconds = wall_before + time.perf_counter() - session_start
+        evaluation = None
+        if config.eval_frequency and (
+            crossings(previous_step, counters.env_step, config.eval_frequency) or finished
+        ):
+            evaluation = evaluate(model, scenario, config)
+        if evaluation or finished or crossings(previous_step, counters.env_step, config.log_frequency):
+            session_seconds = time.perf_counter() - session_start
+            record = {
+                "kind": "train",
+                "env_step": counters.env_step,
+                "episodes": counters.episodes,
+                "updates": counters.updates,
+                "stage": scenario.name,
+                "epsilon": epsilon,
+                "loss": float(np.mean(losses)) if losses else None,
+                **recent_means(recent),
+                "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),
+                "wall_seconds": counters.wall_seconds,
+                "eval": evaluation,
+            }
+            write_record(log_path, record)
+            losses.clear()
+            if evaluation:
+                progress.note(
+                    f"eval at {counters.env_step} on {evaluation['scenario']}: success "
+                    f"{evaluation['success_rate']:.2f}, travel time {evaluation['travel_time_s']:.1f} s, "
+                    f"collisions {evaluation['collision_ratio']:.2f}"
+                )
+        if progress.due() or finished:
+            means = recent_means(recent)
+            success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
+            loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
+            progress.show(
+                f"step {counters.env_step:,}/{config.total_steps:,} | "
+                f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
+                f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
+                f"eps {epsilon:.3f} | updates {counters.updates} | {scenario.name}"
+            )
+
+        # --- checkpoint
+        if finished or crossings(previous_step, counters.env_step, config.checkpoint_frequency):
+            save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
+
+    progress.close()
+    return counters
+
+
+# ---------------------------------------------------------------- benchmark
+@dataclass(frozen=True)
+class Throughput:
+    """Speed of the loop's two halves on this machine, and what they imply for a run."""
+
+    model: str
+    hidden: int
+    layers: int
+    heads: int
+    num_envs: int
+    threads: int
+    rollout_steps_per_second: dict[str, float]
+    """per scenario: environment steps/s of collect + store (no learning), random weights."""
+    updates_per_second: float
+    """gradient updates/s at config.batch_size (sample, forward, backward, Adam step)."""
+    estimated_hours: float
+    """wall clock of config.total_steps: rollout time per stage plus the updates due."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
+    """Time pure rollouts on every scenario of the run, then pure updates at batch `config.batch_size`.
+
+    Each measurement runs for about `seconds` after a short warm-up. The estimate
+    weights each stage's rollout speed by its share of `config.total_steps` and
+    adds (total_steps - learning_starts) / train_frequency updates. The caller
+    sets torch's thread count.
+    """
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+    model, target, optimizer = build_learner(config)
+    buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), training_scenario(config, 0).evader_slots)
+
+    # Scenarios of the run with their shares of the steps.
+    if config.curriculum:
+        starts = [start for start, _ in CURRICULUM_STARTS] + [CURRICULUM_LENGTH]
+        shares = {
+            name: (end - start) / CURRICULUM_LENGTH
+            for (start, name), end in zip(CURRICULUM_STARTS, starts[1:])
+        }
+    else:
+        shares = {config.scenario: 1.0}
+
+    rollout = {}
+    for name in shares:
+        world = World(Scenario.preset(name), config.num_envs, seed=config.seed)
+        observation = world.reset()
+        timed_steps, start = -3, time.perf_counter()  # three untimed warm-up batch steps
+        while timed_steps <= 0 or time.perf_counter() - start < seconds:
+            if timed_steps == 0:
+                start = time.perf_counter()
+            rows, states, actions = act(model, world, observation, config.start_e, rng)
+            observation, result = world.step(actions)
+            store(buffer, rows, states, actions, observation, result)
+            if world.done.any():
+                observation = world.reset(world.done.copy())
+            timed_steps += 1
+        rollout[name] = timed_steps * config.num_envs / (time.perf_counter() - start)
+
+    learn(model, target, optimizer, buffer.sample(config.batch_size, rng), config)  # warm-up
+    updates, start = 0, time.perf_counter()
+    while updates < 3 or time.perf_counter() - start < seconds:
+        learn(model, target, optimizer, buffer.sample(config.batch_size, rng), config)
+        updates += 1
+    updates_per_second = updates / (time.perf_counter() - start)
+
+    rollout_seconds = sum(share * config.total_steps / rollout[name] for name, share in shares.items())
+    update_count = max(config.total_steps - config.learning_starts, 0) / config.train_frequency
+    return Throughput(
+        model=config.model,
+        hidden=config.hidden,
+        layers=config.layers,
+        heads=config.heads,
+        num_envs=config.num_envs,
+        threads=torch.get_num_threads(),
+        rollout_steps_per_second=rollout,
+        updates_per_second=updates_per_second,
+        estimated_hours=(rollout_seconds + update_count / updates_per_second) / 3600.0,
+    )
