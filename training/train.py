@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from terl_rt.actions import NUM_PURSUER_ACTIONS
+from terl_rt.evaluate import summarize
 from terl_rt.observation import Observation
 from terl_rt.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
 from terl_rt.world import StepResult, World
@@ -202,8 +203,9 @@ def evaluate(model: QNetwork, scenario: Scenario, config: Config) -> dict[str, A
     """Greedy episodes of `scenario` on fixed seeds, run as one batch.
 
     `config.eval_episodes` worlds seeded with `config.eval_seed`, truncated after
-    `config.eval_max_steps` steps. Returns the scenario name, episodes, success
-    rate, mean travel time (s), mean collision ratio and mean per-pursuer return.
+    `config.eval_max_steps` steps. Returns the scenario name, episodes, the fields of
+    terl_rt.evaluate.Summary (success rate, travel time, collision ratio, steps) and
+    the mean per-pursuer return.
     """
     scenario = scenario.replace(max_steps=config.eval_max_steps)
     world = World(scenario, num_envs=config.eval_episodes, seed=config.eval_seed)
@@ -226,9 +228,7 @@ def evaluate(model: QNetwork, scenario: Scenario, config: Config) -> dict[str, A
     return {
         "scenario": scenario.name,
         "episodes": len(outcomes),
-        "success_rate": float(np.mean([o.success for o in outcomes])),
-        "travel_time_s": float(np.mean([o.travel_time_s for o in outcomes])),
-        "collision_ratio": float(np.mean([o.collision_ratio for o in outcomes])),
+        **asdict(summarize(outcomes)),
         "mean_return": float(returns.mean()),
     }
 
@@ -423,8 +423,8 @@ def train(
             if evaluation:
                 progress.note(
                     f"eval at {counters.env_step} on {evaluation['scenario']}: success "
-                    f"{evaluation['success_rate']:.2f}, travel time {evaluation['travel_time_s']:.1f} s, "
-                    f"collisions {evaluation['collision_ratio']:.2f}"
+                    f"{evaluation['success_rate']:.2f}, travel time {evaluation['travel_time_s_mean']:.1f} s, "
+                    f"collisions {evaluation['collision_ratio_mean']:.2f}"
                 )
         if progress.due() or finished:
             means = recent_means(recent)
