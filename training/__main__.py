@@ -15,9 +15,10 @@ import torch
 
 from training.checkpoint import STATE_FILE, export_checkpoint, read_config
 from training.config import Config, ConfigError, packaged_configs
+from training.curves import CurvesError
 from training.export import read_metadata
 
-USER_ERRORS = (ConfigError, FileNotFoundError, IsADirectoryError)
+USER_ERRORS = (ConfigError, CurvesError, FileNotFoundError, IsADirectoryError)
 """Exceptions that mean bad input rather than a bug."""
 
 
@@ -49,6 +50,11 @@ def build_parser() -> argparse.ArgumentParser:
     export = commands.add_parser("export", help="export a checkpoint as a contract-v1 ONNX policy")
     export.add_argument("checkpoint", type=Path, metavar="CHECKPOINT_DIR_OR_FILE")
     export.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.onnx")
+
+    plot = commands.add_parser("plot", help="plot a run's training curves (success rate, return) as a PNG")
+    plot.add_argument("run", type=Path, metavar="RUN_DIR", help="output folder of a training run (its metrics.jsonl)")
+    plot.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.png")
+    plot.add_argument("--title", default="", help="figure title")
 
     bench = commands.add_parser("bench", help="time rollouts and updates; estimate a run's wall clock")
     add_config_options(bench)
@@ -118,6 +124,14 @@ def command_export(args: argparse.Namespace) -> None:
     )
 
 
+def command_plot(args: argparse.Namespace) -> None:
+    from training.curves import plot_curves
+    from training.train import METRICS_FILE
+
+    path = plot_curves(args.run / METRICS_FILE, args.output, title=args.title)
+    print(f"{path}: training curves of {args.run}")
+
+
 def command_bench(args: argparse.Namespace) -> None:
     from training.train import benchmark
 
@@ -143,7 +157,7 @@ def command_bench(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    commands = {"train": command_train, "export": command_export, "bench": command_bench}
+    commands = {"train": command_train, "export": command_export, "plot": command_plot, "bench": command_bench}
     try:
         commands[args.command](args)
     except USER_ERRORS as error:

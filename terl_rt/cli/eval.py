@@ -9,6 +9,7 @@ import click
 
 from terl_rt.cli.options import (
     episodes_option,
+    evaluate_with_progress,
     json_option,
     log_option,
     max_steps_option,
@@ -23,7 +24,7 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.episode_log import EpisodeLogWriter, policy_info
-from terl_rt.evaluate import ScenarioResult, evaluate
+from terl_rt.evaluate import ScenarioResult
 
 HEADER = (
     f"{'scenario':<14}{'episodes':>9}{'success':>9}{'travel time (s)':>18}"
@@ -60,17 +61,10 @@ def eval_command(
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
     log = EpisodeLogWriter(Path(log_path), policy_info(policy)) if log_path else None
-    results = []
     try:
-        for scenario in scenarios:
-            with click.progressbar(
-                length=episodes, label=f"{scenario.name:<14}", file=click.get_text_stream("stderr"),
-                show_pos=True,
-            ) as bar:
-                results.append(evaluate(
-                    policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
-                    log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads,
-                ))
+        results = evaluate_with_progress(
+            policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, log=log, threads=threads,
+        )
     finally:
         if log is not None:
             log.close()

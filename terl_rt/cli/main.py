@@ -11,6 +11,7 @@ from terl_rt.cli.eval import eval_command
 from terl_rt.cli.info import info
 from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
+from terl_rt.cli.report import report_command
 from terl_rt.cli.scenarios import scenarios
 from terl_rt.contract import ContractError
 from terl_rt.episode_log import EpisodeLogError
@@ -58,4 +59,5 @@ cli.add_command(eval_command)
 cli.add_command(info)
 cli.add_command(render_command)
 cli.add_command(replay)
+cli.add_command(report_command)
 cli.add_command(scenarios)

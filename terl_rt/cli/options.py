@@ -7,6 +7,8 @@ from pathlib import Path
 import click
 
 import terl_rt
+from terl_rt.episode_log import EpisodeLogWriter
+from terl_rt.evaluate import ScenarioResult, evaluate
 from terl_rt.policy import ContractError, OnnxPolicy
 from terl_rt.scenario import PAPER_SUITE, Scenario
 
@@ -56,6 +58,31 @@ def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: 
     if suite:
         return [Scenario.preset(name) for name in PAPER_SUITE]
     return [Scenario.preset(name) for name in (names or ("small-15",))]
+
+
+def evaluate_with_progress(
+    policy: OnnxPolicy,
+    scenarios: list[Scenario],
+    episodes: int,
+    seed: int,
+    max_steps: int | None = None,
+    workers: int = 1,
+    log: EpisodeLogWriter | None = None,
+    threads: int | None = None,
+) -> list[ScenarioResult]:
+    """`terl_rt.evaluate.evaluate` on each scenario in turn, with a progress bar per
+    scenario on stderr; the arguments are evaluate's."""
+    results = []
+    for scenario in scenarios:
+        with click.progressbar(
+            length=episodes, label=f"{scenario.name:<14}", file=click.get_text_stream("stderr"),
+            show_pos=True,
+        ) as bar:
+            results.append(evaluate(
+                policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
+                log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads,
+            ))
+    return results
 
 
 scenario_option = click.option(

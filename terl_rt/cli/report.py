@@ -1,0 +1,100 @@
+"""`terl-rt report`: evaluate a policy on the paper's presets and write docs/results.md and .png."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import textwrap
+
+import click
+
+from terl_rt.cli.options import (
+    BadInput,
+    episodes_option,
+    evaluate_with_progress,
+    json_option,
+    max_steps_option,
+    open_policy,
+    policy_option,
+    resolve_scenarios,
+    seed_option,
+    threads_option,
+    workers_option,
+)
+from terl_rt.episode_log import policy_info
+from terl_rt.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+
+
+def command_line(
+    policy_path: str | None,
+    scenario_names: tuple[str, ...],
+    episodes: int,
+    seed: int,
+    max_steps: int | None,
+    workers: int,
+    threads: int | None,
+    out: str,
+) -> str:
+    """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
+    words = ["terl-rt", "report"]
+    if policy_path is not None:
+        words += ["--policy", policy_path]
+    for name in scenario_names:
+        words += ["--scenario", name]
+    words += ["--episodes", str(episodes), "--seed", str(seed)]
+    if max_steps is not None:
+        words += ["--max-steps", str(max_steps)]
+    if workers != 1:
+        words += ["--workers", str(workers)]
+    if threads is not None:
+        words += ["--threads", str(threads)]
+    words += ["--out", out]
+    return shlex.join(words)
+
+
+@click.command("report")
+@policy_option
+@click.option(
+    "--scenario", "scenario_names", multiple=True, metavar="NAME",
+    help="Preset scenario (repeat for several) [default: the 10 paper presets; see `terl-rt scenarios`].",
+)
+@episodes_option
+@seed_option
+@max_steps_option
+@workers_option
+@threads_option
+@click.option(
+    "--out", type=str, default="docs", show_default=True, metavar="DIR",
+    help="Folder to write results.md and results.png to (made if missing).",
+)
+@json_option
+def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json) -> None:
+    """Measure a policy against the TERL paper: evaluate it on the paper's presets and
+    write DIR/results.md (a row per preset and per scale group beside the paper's TERL
+    numbers, and which of the paper's goals are met) and DIR/results.png (success rate,
+    travel time and collision ratio against the number of pursuers). The figure needs
+    matplotlib: pip install -e '.[report]'. A progress bar goes to stderr."""
+    try:
+        require_matplotlib()  # before the evaluation, which may take hours
+    except MatplotlibMissing as error:
+        raise BadInput(str(error)) from error
+    scenarios = resolve_scenarios(scenario_names, None, None if scenario_names else "paper")
+    policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    results = evaluate_with_progress(
+        policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
+    )
+    command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out)
+    paths = write_report(results, policy_info(policy), out, command)
+
+    if as_json:
+        click.echo(json.dumps({
+            "policy": {"name": policy.name, "path": str(policy.path), "sha256": policy.sha256},
+            "scenarios": [result.to_dict() for result in results],
+            "groups": [summary.to_dict() for summary in group_summaries(results)],
+            "goals": [check.to_dict() for check in goal_checks(results)],
+            "files": {"markdown": str(paths.markdown), "figure": str(paths.figure)},
+        }))
+        return
+    click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
+    click.echo(textwrap.fill(where_it_stands(results), width=100))
+    click.echo(f"wrote {paths.markdown} and {paths.figure}")

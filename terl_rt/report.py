@@ -1,0 +1,450 @@
+"""A policy's results set against the TERL paper: docs/results.md and docs/results.png.
+
+`write_report` takes the `ScenarioResult`s of `terl_rt.evaluate.evaluate` and writes a
+markdown page (the policy, the command, the date; a row per preset beside the paper's
+TERL row for its scale group; a row per scale group; which of the paper's goals are
+met) and a figure in the manner of the paper's Fig. 3 (success rate, travel time and
+collision ratio against the number of pursuers).
+
+matplotlib draws the figure; it is an optional extra (`pip install -e '.[report]'`),
+imported only when a figure is drawn.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import NamedTuple
+
+from terl_rt.contract import META_TRAINED_ON, META_TRAINING_STEPS
+from terl_rt.evaluate import ScenarioResult
+from terl_rt.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
+from terl_rt.scenario import PRESETS
+
+MARKDOWN_NAME = "results.md"
+FIGURE_NAME = "results.png"
+PAPER_EPISODES = 20
+"""Episodes a scenario in the paper's evaluation."""
+PAPER_MAX_STEPS = 1000
+"""Step limit of the paper's evaluation episodes (world.md section 10)."""
+INSTALL_HINT = "pip install -e '.[report]'"
+
+
+class MatplotlibMissing(ImportError):
+    """matplotlib, needed for the figure, is not installed; the message says how to install it."""
+
+
+class ReportPaths(NamedTuple):
+    """The files `write_report` wrote."""
+
+    markdown: Path
+    figure: Path
+
+
+@dataclass(frozen=True)
+class GroupSummary:
+    """This policy's mean over the evaluated presets of one scale group (each preset weighs the same)."""
+
+    group: str
+    """'small', 'medium', 'large' or 'CC'."""
+    presets: tuple[str, ...]
+    """the group's presets that were evaluated, in the order given."""
+    success_rate: float
+    travel_time_s_mean: float
+    """s: mean of the presets' mean travel times."""
+    collision_ratio_mean: float
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "presets": list(self.presets)}
+
+
+@dataclass(frozen=True)
+class GoalCheck:
+    """One of the paper's goals for one scale group, and whether this policy meets it."""
+
+    group: str
+    metric: str
+    """'success rate', 'travel time' or 'collision ratio'."""
+    value: float
+    """this policy's group mean (travel time in s)."""
+    goal: float
+    """the bound: a minimum for the success rate, a maximum for the others."""
+    met: bool
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# --- numbers ------------------------------------------------------------------------
+
+
+def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
+    """Per scale group with at least one evaluated preset, in the paper's order: the mean
+    of the presets' success rates, mean travel times (s) and mean collision ratios."""
+    summaries = []
+    for group in SCALE_GROUPS:
+        members = [r for r in results if scale_group(r.name) == group]
+        if not members:
+            continue
+        summaries.append(GroupSummary(
+            group=group,
+            presets=tuple(r.name for r in members),
+            success_rate=_mean(r.success_rate for r in members),
+            travel_time_s_mean=_mean(r.travel_time_s_mean for r in members),
+            collision_ratio_mean=_mean(r.collision_ratio_mean for r in members),
+        ))
+    return summaries
+
+
+def goal_checks(results: Sequence[ScenarioResult]) -> list[GoalCheck]:
+    """The paper's goals (`terl_rt.paper.GOALS`) for every evaluated scale group: success
+    rate at or above, travel time (s) and collision ratio at or under the bound.
+
+    A short travel time counts only with the success goal met: episodes that end
+    early because too few pursuers are left are not fast encirclements.
+    """
+    checks = []
+    for summary in group_summaries(results):
+        goal = GOALS[summary.group]
+        succeeds = summary.success_rate >= goal.min_success_rate - 1e-9
+        for metric, value, bound, met in (
+            ("success rate", summary.success_rate, goal.min_success_rate, succeeds),
+            ("travel time", summary.travel_time_s_mean, goal.max_travel_time_s,
+             succeeds and summary.travel_time_s_mean <= goal.max_travel_time_s + 1e-9),
+            ("collision ratio", summary.collision_ratio_mean, goal.max_collision_ratio,
+             summary.collision_ratio_mean <= goal.max_collision_ratio + 1e-9),
+        ):
+            checks.append(GoalCheck(summary.group, metric, value, bound, met))
+    return checks
+
+
+def where_it_stands(results: Sequence[ScenarioResult]) -> str:
+    """A short factual paragraph: per evaluated scale group, which of the paper's goals
+    are met and which are missed, with the numbers; then what was not evaluated and
+    whether the runs are comparable with the paper's (20 episodes, 1000 steps)."""
+    summaries = {s.group: s for s in group_summaries(results)}
+    checks = goal_checks(results)
+    sentences = []
+    for group, summary in summaries.items():
+        own = [c for c in checks if c.group == group]
+        met = [c for c in own if c.met]
+        missed = [c for c in own if not c.met]
+        where = f"{_group_title(group)} ({', '.join(summary.presets)})"
+        if not missed:
+            sentences.append(f"{where} meets all three goals: {_join(_shown(c) for c in own)}.")
+        elif not met:
+            sentences.append(f"{where} misses all three goals: {_join(_shown(c) for c in own)}.")
+        else:
+            sentences.append(
+                f"{where} meets {len(met)} of 3 goals, {_join(_shown(c) for c in met)}, "
+                f"and misses {_join(_shown(c) for c in missed)}."
+            )
+    if checks:
+        sentences.append(f"In all, {sum(c.met for c in checks)} of {len(checks)} goals are met.")
+    else:
+        sentences.append("No preset of the paper's scale groups was evaluated, so no goal is checked.")
+
+    missing = [g for g in SCALE_GROUPS if g not in summaries]
+    if checks and missing:
+        sentences.append(f"Not evaluated: {_join(_group_title(g, lower=True) for g in missing)}.")
+    unreported = [r.name for r in results if scale_group(r.name) is None]
+    if unreported:
+        sentences.append(f"The paper reports nothing for {', '.join(unreported)}; those rows are not compared.")
+    episodes = sorted({r.episodes for r in results})
+    max_steps = sorted({r.max_steps for r in results})
+    if results and (episodes != [PAPER_EPISODES] or max_steps != [PAPER_MAX_STEPS]):
+        sentences.append(
+            f"These runs used {_join((str(e) for e in episodes), 'or')} "
+            f"{'episode' if episodes == [1] else 'episodes'} a scenario and a step limit of "
+            f"{_join((str(s) for s in max_steps), 'or')}, not the paper's {PAPER_EPISODES} and "
+            f"{PAPER_MAX_STEPS}, so the comparison is indicative only."
+        )
+    return " ".join(sentences)
+
+
+# --- markdown -----------------------------------------------------------------------
+
+
+def render_markdown(
+    results: Sequence[ScenarioResult],
+    policy_info: Mapping,
+    command: str,
+    date: datetime,
+    figure_name: str = FIGURE_NAME,
+) -> str:
+    """The text of results.md. `policy_info` as `terl_rt.episode_log.policy_info` makes
+    it: name, sha256, path and metadata (a dict of the ONNX metadata_props)."""
+    metadata = policy_info.get("metadata") or {}
+    name = policy_info.get("name", "unknown policy")
+    seeds = sorted({r.seed for r in results})
+    lines = [
+        f"# {name} against the TERL paper",
+        "",
+        f"- policy: `{name}`" + (f" (`{policy_info['path']}`)" if policy_info.get("path") else ""),
+        f"- sha256: `{str(policy_info.get('sha256', ''))[:12]}`",
+        f"- training steps: {_training_steps(metadata.get(META_TRAINING_STEPS))}"
+        + (f", trained on {metadata[META_TRAINED_ON]}" if metadata.get(META_TRAINED_ON) else ""),
+        f"- command: `{command}`",
+        f"- date: {date.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"- episodes a scenario: {_join((str(e) for e in sorted({r.episodes for r in results})), 'or')}, "
+        f"episode k with seed {_join((str(s) for s in seeds), 'or')} + k; step limit "
+        f"{_join((str(s) for s in sorted({r.max_steps for r in results})), 'or')} decision steps of 0.5 s",
+        "",
+        f"![success rate, travel time and collision ratio against the number of pursuers]({figure_name})",
+        "",
+        "## Where it stands",
+        "",
+        where_it_stands(results),
+        "",
+        "The goals are the paper's TERL numbers (policy.md section 4): success rate 1.00 at small, "
+        "medium and large scale and 0.80 on CC, collision ratio at most 0.03, and travel time at or "
+        f"under {_join(f'{GOALS[g].max_travel_time_s:.0f} s' for g in SCALE_GROUPS)} "
+        f"({_join(_group_title(g, lower=True) for g in SCALE_GROUPS)}).",
+        "",
+        "## Per preset",
+        "",
+        "The paper reports one number per scale group, not per preset: the paper's TERL row for "
+        "the preset's group stands beside each preset. Travel time is mean ± standard deviation "
+        "over the episodes.",
+        "",
+        "| preset | group | episodes | success | travel time (s) | collision ratio "
+        "| paper TERL success | paper TERL travel time (s) | paper TERL collision ratio |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        group = scale_group(r.name)
+        paper = _paper_cells(group)
+        lines.append(
+            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f} "
+            f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f} | {r.collision_ratio_mean:.3f} | {paper} |"
+        )
+
+    lines += [
+        "",
+        "## Per scale group",
+        "",
+        "This policy's numbers are the mean over the group's evaluated presets, each preset "
+        "weighing the same; the paper's are its TERL row for the group.",
+        "",
+        "| group | presets | success | paper TERL | travel time (s) | paper TERL | collision ratio | paper TERL |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for s in group_summaries(results):
+        paper = TERL_BY_GROUP[s.group]
+        lines.append(
+            f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f} | {paper.success_rate:.2f} "
+            f"| {s.travel_time_s_mean:.1f} | {paper.travel_time_s:.2f} "
+            f"| {s.collision_ratio_mean:.3f} | {paper.collision_ratio:.2f} |"
+        )
+
+    cc = next((r for r in results if scale_group(r.name) == "CC"), None)
+    lines += [
+        "",
+        "## The paper's CC comparison",
+        "",
+        "CC: 28 pursuers, 14 evaders. The paper's ablation table gives TERL on CC as "
+        f"{ABLATION_TABLE[('CC', TERL)].success_rate:.2f} / {ABLATION_TABLE[('CC', TERL)].travel_time_s:.2f} s / "
+        f"{ABLATION_TABLE[('CC', TERL)].collision_ratio:.2f}; the goals use the comparison row below.",
+        "",
+        "| method | success | travel time (s) | collision ratio |",
+        "|---|---:|---:|---:|",
+    ]
+    if cc is not None:
+        lines.append(
+            f"| this policy ({cc.name}) | {cc.success_rate:.2f} | {cc.travel_time_s_mean:.1f} "
+            f"| {cc.collision_ratio_mean:.3f} |"
+        )
+    for method, row in CC_TABLE.items():
+        lines.append(f"| paper {method} | {row.success_rate:.2f} | {row.travel_time_s:.2f} | {row.collision_ratio:.2f} |")
+
+    lines += [
+        "",
+        "## The paper's ablation",
+        "",
+        "| group | method | success | travel time (s) | collision ratio |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for (group, method), row in ABLATION_TABLE.items():
+        lines.append(
+            f"| {group} | {method} | {row.success_rate:.2f} | {row.travel_time_s:.2f} | {row.collision_ratio:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# --- figure -------------------------------------------------------------------------
+
+
+def require_matplotlib() -> None:
+    """Raise `MatplotlibMissing` (with the install command) unless matplotlib imports;
+    check this before a long evaluation whose figure needs it."""
+    _agg_figure_classes()
+
+
+def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, title: str = "") -> Path:
+    """Draw the three panels of the paper's Fig. 3 into a PNG at `path`: success rate,
+    travel time (s, mean ± std) and collision ratio against the number of pursuers N.
+
+    This policy's small, medium and large presets are one line with markers; the paper's
+    TERL row of each group is a dashed line over the group's N with hollow squares;
+    cc-28 (N = 28) is a star, filled for this policy, hollow for the paper.
+    """
+    figure_class, canvas_class = _agg_figure_classes()
+    ours = sorted(
+        ((PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) in ("small", "medium", "large")),
+        key=lambda pair: pair[0],
+    )
+    cc = [(PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) == "CC"]
+    group_pursuers = {
+        group: [PRESETS[name].pursuers for name, g in PRESET_GROUPS.items() if g == group] for group in SCALE_GROUPS
+    }
+    panels = (
+        ("success rate", "success_rate", "success_rate", None),
+        ("travel time (s)", "travel_time_s_mean", "travel_time_s", "travel_time_s_std"),
+        ("collision ratio", "collision_ratio_mean", "collision_ratio", None),
+    )
+
+    figure = figure_class(figsize=(15.0, 4.6), dpi=110)
+    canvas_class(figure)
+    axes = figure.subplots(1, 3)
+    for ax, (label, ours_field, paper_field, spread_field) in zip(axes, panels):
+        # The paper's TERL numbers: one value per scale group, drawn across the group's N.
+        for index, group in enumerate(("small", "medium", "large")):
+            xs = group_pursuers[group]
+            value = getattr(TERL_BY_GROUP[group], paper_field)
+            ax.hlines(value, min(xs) - 2, max(xs) + 2, colors="C1", linestyles="dashed",
+                      label="paper TERL (per scale group)" if index == 0 else None)
+            ax.plot(xs, [value] * len(xs), "s", color="C1", markerfacecolor="none")
+        ax.plot(group_pursuers["CC"], [getattr(TERL_BY_GROUP["CC"], paper_field)], "*", color="C3",
+                markerfacecolor="none", markersize=13, label="paper TERL, CC")
+        if ours:
+            xs = [n for n, _ in ours]
+            ys = [getattr(r, ours_field) for _, r in ours]
+            if spread_field is None:
+                ax.plot(xs, ys, "o-", color="C0", label="this policy")
+            else:
+                ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in ours], fmt="o-", color="C0",
+                            capsize=3, label="this policy")
+        for n, r in cc:
+            yerr = None if spread_field is None else [getattr(r, spread_field)]
+            ax.errorbar([n], [getattr(r, ours_field)], yerr=yerr, fmt="*", color="C2", markersize=13,
+                        capsize=3, label="this policy, cc-28")
+        ax.set_title(label)
+        ax.set_xlabel("pursuers N")
+        ax.grid(True, alpha=0.3)
+        if ours_field == "success_rate":
+            ax.set_ylim(-0.05, 1.05)
+        elif ours_field == "travel_time_s_mean":
+            ax.set_ylim(bottom=0.0)
+        else:
+            # Collision ratios are mostly a few hundredths: zoom in, but never below 0.05.
+            values = [getattr(r, ours_field) for r in results if scale_group(r.name) is not None]
+            top = max([0.05, *(1.15 * v for v in values), *(1.15 * p.collision_ratio for p in TERL_BY_GROUP.values())])
+            ax.set_ylim(-0.04 * top, top)
+    handles, labels = axes[0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
+    if title:
+        figure.suptitle(title)
+    figure.subplots_adjust(left=0.05, right=0.98, bottom=0.24, top=0.85, wspace=0.25)
+    path = Path(path)
+    figure.savefig(path, format="png")
+    return path
+
+
+def _agg_figure_classes():
+    """(Figure, FigureCanvasAgg), imported here so matplotlib stays optional."""
+    try:
+        import matplotlib  # noqa: F401  (fails first, even when submodules are cached)
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as error:
+        raise MatplotlibMissing(
+            f"the report's figure needs matplotlib, which is not installed; install it with: {INSTALL_HINT}"
+        ) from error
+    return Figure, FigureCanvasAgg
+
+
+# --- both ---------------------------------------------------------------------------
+
+
+def write_report(
+    results: Sequence[ScenarioResult],
+    policy_info: Mapping,
+    out_dir: str | os.PathLike,
+    command: str,
+    date: datetime | None = None,
+) -> ReportPaths:
+    """Write `out_dir`/results.png and `out_dir`/results.md (the folder is made if missing).
+
+    results: the evaluations, in the order the tables list them; policy_info: name,
+    sha256, path and metadata, as `terl_rt.episode_log.policy_info` gives them;
+    command: the command line that produced them; date: when (default now, UTC).
+    Raises `MatplotlibMissing` before writing anything when matplotlib is absent.
+    """
+    if not results:
+        raise ValueError("write_report needs at least one ScenarioResult")
+    require_matplotlib()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"{policy_info.get('name', 'policy')} (sha256 {str(policy_info.get('sha256', ''))[:12]}) against the TERL paper"
+    figure = plot_results(results, out_dir / FIGURE_NAME, title=title)
+    markdown = out_dir / MARKDOWN_NAME
+    markdown.write_text(render_markdown(results, policy_info, command, date or datetime.now(timezone.utc)))
+    return ReportPaths(markdown=markdown, figure=figure)
+
+
+# --- helpers ------------------------------------------------------------------------
+
+
+def _mean(values) -> float:
+    values = list(values)
+    return math.fsum(values) / len(values)
+
+
+def _join(items, word: str = "and") -> str:
+    """'a', 'a and b', 'a, b and c'."""
+    items = list(items)
+    if len(items) <= 1:
+        return "".join(items)
+    return f"{', '.join(items[:-1])} {word} {items[-1]}"
+
+
+def _group_title(group: str, lower: bool = False) -> str:
+    if group == "CC":
+        return "CC"
+    title = f"{group} scale"
+    return title if lower else title.capitalize()
+
+
+def _shown(check: GoalCheck) -> str:
+    """'travel time 71.2 s > 63 s': enough digits that a miss never looks like the goal."""
+    digits, unit = {"success rate": (2, ""), "travel time": (1, " s"), "collision ratio": (3, "")}[check.metric]
+    if check.metric == "travel time" and not check.met and check.value <= check.goal + 1e-9:
+        return f"travel time {check.value:.1f} s (within {check.goal:.0f} s, but counted only with the success goal met)"
+    while digits < 6 and not check.met and float(f"{check.value:.{digits}f}") == check.goal:
+        digits += 1
+    if check.metric == "success rate":
+        relation = "≥" if check.met else "<"
+    else:
+        relation = "≤" if check.met else ">"
+    goal_digits = 0 if check.metric == "travel time" else 2
+    return f"{check.metric} {check.value:.{digits}f}{unit} {relation} {check.goal:.{goal_digits}f}{unit}"
+
+
+def _paper_cells(group: str | None) -> str:
+    if group is None:
+        return "— | — | —"
+    paper = TERL_BY_GROUP[group]
+    return f"{paper.success_rate:.2f} | {paper.travel_time_s:.2f} | {paper.collision_ratio:.2f}"
+
+
+def _training_steps(text: str | None) -> str:
+    if text is None:
+        return "unknown (no terl.training_steps metadata)"
+    try:
+        return f"{int(text):,}"
+    except ValueError:
+        return text

@@ -1,0 +1,77 @@
+"""Training curves from a run's metrics.jsonl: success rate and return against environment steps."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+
+class CurvesError(ValueError):
+    """A metrics log that cannot be plotted, or no matplotlib; the message says which."""
+
+
+def read_metrics(path: str | Path) -> list[dict[str, Any]]:
+    """The records of a metrics.jsonl file (one JSON object a line), in order."""
+    path = Path(path)
+    records = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            raise CurvesError(f"{path}:{number}: not a JSON object ({error})") from None
+    return records
+
+
+def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
+    """Write a PNG of the training curves of a run.
+
+    Top: success rate of the recent episodes (line) and of the greedy evaluations
+    (points); bottom: mean per-pursuer return of the recent episodes. Curriculum
+    stage starts are dashed vertical lines. x axis: environment steps.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise CurvesError("plotting needs matplotlib: pip install -e '.[report]'") from None
+
+    records = read_metrics(metrics_path)
+    train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
+    evals = [r for r in records if r.get("kind") == "train" and r.get("eval")]
+    stages = [r for r in records if r.get("kind") == "stage"]
+    if not train:
+        raise CurvesError(f"{metrics_path}: no training record with finished episodes yet")
+
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    steps = [r["env_step"] for r in train]
+    top.plot(steps, [r["success_rate"] for r in train], label="recent episodes (exploring)")
+    if evals:
+        top.plot(
+            [r["env_step"] for r in evals], [r["eval"]["success_rate"] for r in evals],
+            "o", label="greedy evaluation",
+        )
+    top.set_ylabel("success rate")
+    top.set_ylim(-0.05, 1.05)
+    top.legend(loc="upper left")
+    bottom.plot(steps, [r["mean_return"] for r in train])
+    bottom.set_ylabel("return per pursuer")
+    bottom.set_xlabel("environment steps")
+    for axis in (top, bottom):
+        axis.grid(alpha=0.3)
+        for stage in stages:
+            axis.axvline(stage["env_step"], color="grey", linestyle="--", linewidth=0.8)
+    for stage in stages:
+        top.annotate(stage["stage"].replace("curriculum-", "stage "), (stage["env_step"], 1.0),
+                     fontsize=7, rotation=90, va="top", ha="right", color="grey")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out_path = Path(out_path)
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return out_path
