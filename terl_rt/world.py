@@ -129,7 +129,7 @@ class World:
             if env_mask is not None:
                 raise ValueError("reset: seed re-seeds every environment; pass env_mask=None with it")
             self._seed(seed)
-        mask = np.ones(self.num_envs, bool) if env_mask is None else np.asarray(env_mask, bool)
+        mask = np.ones(self.num_envs, bool) if env_mask is None else np.array(env_mask, bool)  # a copy: callers pass world.done
         if mask.shape != (self.num_envs,):
             raise ValueError(f"reset: env_mask must have shape ({self.num_envs},), got {mask.shape}")
         if self.state is None and not mask.all():

@@ -22,6 +22,8 @@ import torch
 from torch import nn
 
 from terl_rt.actions import PURSUER_ACTIONS
+from terl_rt.scenario import PAPER_SUITE, Scenario
+from terl_rt.simulator import Simulator
 from training.networks.encoders import QNetwork
 
 CONTRACT_VERSION = "1"
@@ -210,14 +212,35 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {entry.key: entry.value for entry in proto.metadata_props}
 
 
+def simulated_inputs(evader_slots: int, steps: int = 20) -> tuple[str, dict[str, torch.Tensor]] | None:
+    """Real observations: the active pursuers of the first paper preset with `evader_slots`
+    evader slots, after `steps` random steps from seed 0. None if no preset has that E."""
+    names = [name for name in PAPER_SUITE if Scenario.preset(name).evader_slots == evader_slots]
+    if not names:
+        return None
+    simulator = Simulator(Scenario.preset(names[0]), seed=0)
+    observation = simulator.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        if simulator.done:
+            break
+        observation, _ = simulator.step(rng.integers(0, 9, simulator.scenario.pursuers))
+    arrays = observation.as_inputs()
+    return names[0], {name: torch.from_numpy(arrays[name].copy()) for name in INPUT_NAMES}
+
+
 def parity_cases(evader_slots: tuple[int, ...]) -> Iterator[tuple[str, dict[str, torch.Tensor]]]:
-    """Inputs `check_parity` compares on: per E, all slots present (P = O = 5) and a
-    partial mask with other P and O (4 and 6). Yields (description, inputs)."""
+    """Inputs `check_parity` compares on: per E, all slots present (P = O = 5), a
+    partial mask with other P and O (4 and 6), and real observations of a paper
+    preset with that E when there is one. Yields (description, inputs)."""
     for index, evaders in enumerate(evader_slots):
         yield f"E={evaders} all present", example_inputs(4, 5, evaders, 5, seed=2 * index)
         yield f"E={evaders} partial mask, P=4, O=6", example_inputs(
             5, 4, evaders, 6, seed=2 * index + 1, partial_mask=True
         )
+        simulated = simulated_inputs(evaders)
+        if simulated is not None:
+            yield f"E={evaders} observations of {simulated[0]}", simulated[1]
 
 
 def check_parity(

@@ -117,3 +117,12 @@ def test_export_leaves_training_mode_as_it_was(tmp_path):
     model = build_network("terl", hidden=16, layers=1, heads=2).train()
     export_onnx(model, tmp_path / "policy.onnx", {})
     assert model.training
+
+
+def test_parity_cases_include_real_observations_for_each_paper_evader_slot_count():
+    from training.export import parity_cases
+
+    names = [case for case, _ in parity_cases((8, 14, 20))]
+    assert "E=8 observations of small-11" in names
+    assert "E=14 observations of medium-48" in names
+    assert "E=20 observations of large-72" in names

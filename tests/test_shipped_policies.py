@@ -1,0 +1,36 @@
+"""Every policy shipped in exported/ loads, meets the ONNX contract and has its model card."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from terl_rt import Scenario, Simulator
+from terl_rt.policy import OnnxPolicy, check_contract
+
+EXPORTED = Path(__file__).resolve().parent.parent / "exported"
+SHIPPED = sorted(EXPORTED.glob("*.onnx"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_shipped_policy_meets_the_contract(path):
+    report = check_contract(path, strict=True)
+    assert report.ok
+    assert "terl.training_steps" in report.metadata and "terl.trained_on" in report.metadata
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_shipped_policy_has_a_model_card(path):
+    assert path.with_suffix(".md").is_file(), f"{path.name} ships without {path.with_suffix('.md').name}"
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_shipped_policy_acts_on_every_evader_slot_count(path):
+    policy = OnnxPolicy(path, threads=1)
+    for name in ("small-15", "medium-48", "large-80", "cc-28"):
+        observation = Simulator(Scenario.preset(name), seed=0).reset()
+        actions = policy.act(observation)
+        assert actions.shape == (len(observation.ego),)
+        assert np.all((actions >= 0) & (actions < 9))
