@@ -38,7 +38,7 @@ def vortex_current(z: np.ndarray, core_z: np.ndarray, circulation: np.ndarray, c
     with i; the opposite rotation is folded into the sign of `circulation`.
     """
     diff = core_z[:, None, :] - z[:, :, None]  # [B, R, V]
-    dist2 = (diff * diff.conj()).real
+    dist2 = diff.real**2 + diff.imag**2
     weight = circulation[:, None, :] / np.maximum(dist2, core_radius * core_radius)
     return 1j * (weight * diff).sum(axis=2)
 
@@ -70,17 +70,24 @@ def integrate(
     Each sub-step: c = current(x); v = s (cos theta, sin theta) + c; x += v dt;
     s = clip(s + (a - k s) dt, 0, s_max); theta = (theta + w dt) mod 2pi.
     Heading and speed do not depend on position: they are computed for every
-    sub-step first (the heading in closed form, theta_j = (theta + j w dt) mod 2pi),
-    and only the position update loops with the current.
+    sub-step j first, and only the position update loops with the current. The
+    heading in closed form, theta_j = (theta + j w dt) mod 2pi. The speed map
+    s -> s + (a - k s) dt is affine with fixed point s* = a / k <= s_max; while
+    k dt <= 1 it is increasing, the clip binds monotonically and the iterated clip
+    equals clip(s* + (s - s*) (1 - k dt)^j, 0, s_max); otherwise it is iterated.
     """
     count = np.arange(substeps + 1)[:, None, None]  # sub-step index j, [S+1, 1, 1]
     thetas = np.mod(theta + count * (yaw_rate * dt), TWO_PI)  # [S+1, B, R]
     thetas = np.where(thetas >= TWO_PI, 0.0, thetas)  # mod of a tiny negative angle rounds to 2pi
-    speeds = np.empty((substeps + 1,) + speed.shape)  # [S+1, B, R]
-    speeds[0] = speed
-    for j in range(substeps):
-        s = speeds[j]
-        speeds[j + 1] = np.minimum(np.maximum(s + (acceleration - drag * s) * dt, 0.0), max_speed)
+    if np.all(drag * dt <= 1.0):
+        terminal = acceleration / drag  # s*, [B, R]
+        speeds = np.minimum(np.maximum(terminal + (speed - terminal) * (1.0 - drag * dt) ** count, 0.0), max_speed)
+    else:
+        speeds = np.empty((substeps + 1,) + speed.shape)  # [S+1, B, R]
+        speeds[0] = speed
+        for j in range(substeps):
+            s = speeds[j]
+            speeds[j + 1] = np.minimum(np.maximum(s + (acceleration - drag * s) * dt, 0.0), max_speed)
     steer = speeds[:substeps] * np.exp(1j * thetas[:substeps])  # [S, B, R] complex m/s
     step_scale = moving * dt  # [B, R]: 0 freezes a robot
 

@@ -101,11 +101,11 @@ def gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:
 
 def bearing(local: np.ndarray) -> np.ndarray:
     """Angle of ego-frame points (complex [...]) in (-pi, pi] rad -> [...]."""
-    angle = np.angle(local)
+    angle = np.arctan2(local.imag, local.real)
     return np.where(angle == -np.pi, np.pi, angle)
 
 
 def heading(vec: np.ndarray) -> np.ndarray:
     """Direction of vectors (complex [...]) in [0, 2pi) rad -> [...]."""
-    angle = np.mod(np.angle(vec), 2 * np.pi)
+    angle = np.mod(np.arctan2(vec.imag, vec.real), 2 * np.pi)
     return np.where(angle >= 2 * np.pi, 0.0, angle)  # mod of a tiny negative angle rounds to 2pi
