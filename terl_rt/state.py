@@ -49,15 +49,6 @@ class WorldState:
     steps: np.ndarray
     """[B] int64: decision steps taken in the episode."""
 
-    @property
-    def num_envs(self) -> int:
-        return self.pursuer_xy.shape[0]
-
-    @property
-    def pursuer_collided(self) -> np.ndarray:
-        """[B, N] bool: collided pursuers (the only way a pursuer is deactivated)."""
-        return ~self.pursuer_active
-
     def copy(self) -> WorldState:
         return WorldState(**{f.name: getattr(self, f.name).copy() for f in dataclasses.fields(self)})
 
