@@ -79,7 +79,7 @@ def integrate(
     count = np.arange(substeps + 1)[:, None, None]  # sub-step index j, [S+1, 1, 1]
     thetas = np.mod(theta + count * (yaw_rate * dt), TWO_PI)  # [S+1, B, R]
     thetas = np.where(thetas >= TWO_PI, 0.0, thetas)  # mod of a tiny negative angle rounds to 2pi
-    if np.all(drag * dt <= 1.0):
+    if drag.max(initial=0.0) * dt <= 1.0:
         terminal = acceleration / drag  # s*, [B, R]
         speeds = np.minimum(np.maximum(terminal + (speed - terminal) * (1.0 - drag * dt) ** count, 0.0), max_speed)
     else:
@@ -93,10 +93,22 @@ def integrate(
 
     z = as_complex(xy)
     core_z = as_complex(core_xy)
-    has_cores = core_z.shape[1] > 0
-    for k in range(substeps):
-        velocity = steer[k] + vortex_current(z, core_z, circulation, core_radius) if has_cores else steer[k]
-        z = z + velocity * step_scale
+    drift = steer * step_scale  # [S, B, R] complex m: the steer part of each sub-step's move
+    if core_z.shape[1] > 0:
+        # The current's part of a move, folded into one weight per (robot, core):
+        # dt * i * circulation / max(d^2, r0^2) times (core - x), as in vortex_current.
+        core_row = core_z[:, None, :]  # [B, 1, V]
+        weight = (1j * circulation)[:, None, :] * step_scale[:, :, None]  # [B, R, V]
+        floor = core_radius * core_radius
+        for k in range(substeps - 1):
+            diff = core_row - z[:, :, None]
+            dist = np.abs(diff)
+            z = z + drift[k] + (weight / np.maximum(dist * dist, floor) * diff).sum(axis=2)
+        velocity = steer[-1] + vortex_current(z, core_z, circulation, core_radius)
+    else:
+        z = z + drift[:-1].sum(axis=0)
+        velocity = steer[-1]
+    z = z + velocity * step_scale
 
     velocity = np.where(moving, velocity, 0.0)
     return as_pairs(z), np.where(moving, thetas[-1], theta), np.where(moving, speeds[-1], speed), as_pairs(velocity)

@@ -7,18 +7,21 @@ the evader action table (terl_rt.actions.EVADER_ACTIONS). Any object with the
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
 
 from terl_rt.actions import EVADER_YAW_RATES
 from terl_rt.dynamics import TWO_PI, as_complex
-from terl_rt.geometry import Geometry, gather, nearest_slots, not_self
+from terl_rt.geometry import Geometry, SlotGroup, candidate_key, nearest_slots, per_entity, take, take_rows
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
 APF_SLOTS = 5
 """nearest obstacles, pursuers and other evaders an evader takes into account."""
+ROBOT_SLOTS = np.arange(3 * APF_SLOTS) >= APF_SLOTS
+"""[15] bool: the APF slots that hold robots (pursuers, evaders) rather than obstacles."""
 
 
 class EvaderPolicy(Protocol):
@@ -72,8 +75,8 @@ class PublishedAPFEvader:
 def _push(distance: np.ndarray, radius: np.ndarray | float, p: WorldParams) -> tuple[np.ndarray, np.ndarray]:
     """Obstacle-style repulsion magnitude and the clearance d = |p| - r - body radius.
 
-    k_rep (1/d - 1/d0) / d^n where d < d0, else 0. A clearance of exactly 0 is
-    nudged to 1e-9 m to keep the published formula finite.
+    k_rep (1/d - 1/d0) / d^n where d < d0, else 0 (so 0 for an infinite distance).
+    A clearance of exactly 0 is nudged to 1e-9 m to keep the published formula finite.
     """
     d = distance - radius - p.apf_body_radius
     d = np.where(d == 0.0, 1e-9, d)
@@ -81,55 +84,72 @@ def _push(distance: np.ndarray, radius: np.ndarray | float, p: WorldParams) -> t
     return magnitude, d
 
 
+@lru_cache(maxsize=64)
+def apf_groups(num_pursuers: int, num_evaders: int, num_obstacles: int) -> tuple[SlotGroup, ...]:
+    """Entity columns of the obstacle, pursuer and evader groups an evader takes into account."""
+    obstacles = num_pursuers + num_evaders
+    return (
+        SlotGroup(obstacles, obstacles + num_obstacles, APF_SLOTS),
+        SlotGroup(0, num_pursuers, APF_SLOTS),
+        SlotGroup(num_pursuers, obstacles, APF_SLOTS),
+    )
+
+
 def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndarray:
     """Obstacle and robot forces on each evader from its 5 nearest perceived obstacles,
-    pursuers and other evaders: [B, M] complex, world frame (the sums are frame-free)."""
-    num_evaders = state.evader_active.shape[1]
+    pursuers and other evaders: [B, M] complex, world frame (the sums are frame-free).
+
+    Slots: APF_SLOTS obstacles, then APF_SLOTS pursuers, then APF_SLOTS evaders.
+    An empty slot has an infinite distance, so its unit vector and force are 0.
+    """
+    num_envs, num_pursuers = state.pursuer_active.shape
+    num_evaders, num_obstacles = state.evader_active.shape[1], state.obstacle_r.shape[1]
+    distance = geometry.distance[:, num_pursuers:]  # [B, M, T + 1] m
     own_z = geometry.evader_z[..., None]
     own_vel = as_complex(state.evader_vel)[..., None]
-    force = np.zeros(state.evader_active.shape, np.complex128)
 
-    # Obstacles: along -p/|p|.
-    dist = geometry.evader_obstacle
-    if dist.shape[-1]:
-        idx, present, d_centre = nearest_slots(dist, dist <= p.perception_radius + state.obstacle_r[:, None, :], APF_SLOTS)
-        unit = (gather(geometry.obstacle_z, idx) - own_z) / np.where(present, d_centre, 1.0)
-        magnitude, _ = _push(d_centre, gather(state.obstacle_r, idx), p)
-        force -= (np.where(present, magnitude, 0.0) * unit).sum(-1)
-
-    # Robots: pursuers and other evaders, only when closing in (v_ao >= 0).
+    # Candidates: perceived obstacles and perceived active robots other than oneself.
     reach = p.perception_radius + p.robot_radius
-    pursuer_dist = np.swapaxes(geometry.pursuer_evader, 1, 2)  # [B, M, N]
-    idx_p, present_p, dist_p = nearest_slots(pursuer_dist, (pursuer_dist <= reach) & state.pursuer_active[:, None, :], APF_SLOTS)
-    others = (geometry.evader_evader <= reach) & state.evader_active[:, None, :] & not_self(num_evaders)
-    idx_e, present_e, dist_e = nearest_slots(geometry.evader_evader, others, APF_SLOTS)
-    rel = np.concatenate([gather(geometry.pursuer_z, idx_p), gather(geometry.evader_z, idx_e)], -1) - own_z
-    vel = np.concatenate([gather(as_complex(state.pursuer_vel), idx_p), gather(as_complex(state.evader_vel), idx_e)], -1)
-    present = np.concatenate([present_p, present_e], -1)
-    d_centre = np.concatenate([dist_p, dist_e], -1)
-    unit = rel / np.where(present, d_centre, 1.0)
-    v_ao = ((own_vel - vel) * unit.conj()).real
-    magnitude, d = _push(d_centre, p.apf_body_radius, p)
-    velocity_push = np.where((d < p.apf_d0) & (v_ao > 0), -p.apf_k_v * v_ao * (1.0 / d - 1.0 / p.apf_d0) / d, 0.0)
-    along_unit = np.where(present & (v_ao >= 0), velocity_push - magnitude, 0.0)
-    return force + (along_unit * unit).sum(-1)
+    limit = per_entity(
+        np.where(state.pursuer_active, reach, -1.0),
+        np.where(state.evader_active, reach, -1.0),
+        p.perception_radius + state.obstacle_r,
+        blank=-1.0,
+    )
+    key = candidate_key(distance, num_pursuers, limit)
+    columns = nearest_slots(key, apf_groups(num_pursuers, num_evaders, num_obstacles))
+    d_centre = take_rows(key, columns)  # [B, M, 15] m, inf in empty slots
+
+    # Obstacles push along -p/|p| by their radius; robots (radius = body radius)
+    # only when closing in (v_ao >= 0), with the velocity term added.
+    radius = per_entity(
+        np.full((num_envs, num_pursuers), p.apf_body_radius),
+        np.full((num_envs, num_evaders), p.apf_body_radius),
+        state.obstacle_r,
+    )
+    velocity = per_entity(as_complex(state.pursuer_vel), as_complex(state.evader_vel), np.zeros((num_envs, num_obstacles)))
+    unit = (take(geometry.entity_z, columns) - own_z) / d_centre
+    magnitude, d = _push(d_centre, take(radius, columns), p)
+    v_ao = ((own_vel - take(velocity, columns)) * unit.conj()).real
+    velocity_push = np.where(ROBOT_SLOTS & (d < p.apf_d0) & (v_ao > 0), -p.apf_k_v * v_ao * (1.0 / d - 1.0 / p.apf_d0) / d, 0.0)
+    along_unit = np.where(~ROBOT_SLOTS | (v_ao >= 0), velocity_push - magnitude, 0.0)
+    return (along_unit * unit).sum(-1)
 
 
 def _boundary_force(xy: np.ndarray, p: WorldParams, arena: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World-frame wall repulsion [B, M] complex, near-wall [B, M] and outside [B, M] flags.
 
-    Per wall at distance b (x, W - x, y, H - y): if b < d0, k (1/|b| - 1/d0) / |b|^1.5
+    Per wall at distance b (x, y, W - x, H - y): if b < d0, k (1/|b| - 1/d0) / |b|^1.5
     inward, k = k_rep * k_out outside (b < 0) else k_rep; scaled by
     k_boundary * sqrt(W * H) / 100.
     """
     width, height = arena
-    walls = np.stack([xy[..., 0], width - xy[..., 0], xy[..., 1], height - xy[..., 1]], -1)  # [B, M, 4]
-    inward = np.array([1.0, -1.0, 1.0, -1.0])
+    walls = np.concatenate([xy, np.array(arena) - xy], -1)  # [B, M, 4]: x, y, W - x, H - y
     b = np.maximum(np.abs(walls), 1e-9)
     gain = np.where(walls < 0, p.apf_k_rep * p.apf_k_out, p.apf_k_rep)
-    push = np.where(walls < p.apf_d0, gain * (1.0 / b - 1.0 / p.apf_d0) / b**1.5, 0.0) * inward
+    push = np.where(walls < p.apf_d0, gain * (1.0 / b - 1.0 / p.apf_d0) / b**1.5, 0.0)
     scale = p.apf_k_boundary * np.sqrt(width * height) / 100.0
-    force = (push[..., 0] + push[..., 1] + 1j * (push[..., 2] + push[..., 3])) * scale
+    force = as_complex(np.ascontiguousarray((push[..., :2] - push[..., 2:]) * scale))  # inward: +x, +y, -x, -y
     outside = (walls < 0).any(-1)
     near_wall = (walls < p.apf_d0 / 2).any(-1)
     return force, near_wall, outside

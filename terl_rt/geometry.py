@@ -1,8 +1,14 @@
 """Pairwise geometry shared by collisions, encirclement, rewards, observations and the evader.
 
-Computed once per step after the robots move. Points are handled as complex numbers
-x + iy (a zero-copy view of [..., 2] arrays): a difference is one subtraction and a
-change into a robot's frame one multiplication by exp(-i theta).
+Computed once per step after the robots move: one distance matrix from every robot
+to every entity. Points are handled as complex numbers x + iy (a zero-copy view of
+[..., 2] arrays): a difference is one subtraction and a change into a robot's frame
+one multiplication by exp(-i theta).
+
+Entity columns, in this order: pursuers [0, N), evaders [N, N + M), obstacles
+[N + M, N + M + O), then one *blank* column at T = N + M + O: a point at the origin
+that is never a candidate, which empty slots point to. Robot rows are the first
+N + M columns' entities: pursuers, then evaders.
 Letters: B environments, N pursuers, M evaders, O obstacles; distances in m.
 """
 
@@ -17,69 +23,145 @@ from terl_rt.dynamics import as_complex
 from terl_rt.state import WorldState
 
 
-def pairwise_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Centre distances: complex points a [B, X], b [B, Y] (m) -> [B, X, Y] m."""
-    return np.abs(a[:, :, None] - b[:, None, :])
-
-
 @dataclass(frozen=True)
 class Geometry:
-    """Positions as complex numbers and the centre distances between every pair (m)."""
+    """Every entity's position as a complex number and the robot-to-entity distances (m).
 
-    pursuer_z: np.ndarray
-    """[B, N] complex: pursuer centres x + iy."""
-    evader_z: np.ndarray
-    """[B, M] complex."""
-    obstacle_z: np.ndarray
-    """[B, O] complex."""
-    pursuer_pursuer: np.ndarray
-    """[B, N, N]."""
-    pursuer_evader: np.ndarray
-    """[B, N, M]."""
-    pursuer_obstacle: np.ndarray
-    """[B, N, O]."""
-    evader_evader: np.ndarray
-    """[B, M, M]."""
-    evader_obstacle: np.ndarray
-    """[B, M, O]."""
+    The named pairwise matrices are views of `distance`.
+    """
+
+    entity_z: np.ndarray
+    """[B, T + 1] complex: pursuers, evaders, obstacles, then the blank point 0."""
+    distance: np.ndarray
+    """[B, N + M, T + 1]: centre distance from every robot to every entity column."""
+    num_pursuers: int
+    num_evaders: int
 
     @staticmethod
     def of(state: WorldState) -> Geometry:
-        p, e, o = as_complex(state.pursuer_xy), as_complex(state.evader_xy), as_complex(state.obstacle_xy)
-        return Geometry(
-            pursuer_z=p,
-            evader_z=e,
-            obstacle_z=o,
-            pursuer_pursuer=pairwise_distance(p, p),
-            pursuer_evader=pairwise_distance(p, e),
-            pursuer_obstacle=pairwise_distance(p, o),
-            evader_evader=pairwise_distance(e, e),
-            evader_obstacle=pairwise_distance(e, o),
+        num_envs, num_pursuers = state.pursuer_active.shape
+        num_evaders = state.evader_active.shape[1]
+        entity_z = np.concatenate(
+            [
+                as_complex(state.pursuer_xy),
+                as_complex(state.evader_xy),
+                as_complex(state.obstacle_xy),
+                np.zeros((num_envs, 1), np.complex128),
+            ],
+            axis=1,
         )
+        robots = entity_z[:, : num_pursuers + num_evaders]
+        distance = np.abs(entity_z[:, None, :] - robots[:, :, None])
+        return Geometry(entity_z, distance, num_pursuers, num_evaders)
+
+    @property
+    def num_entities(self) -> int:
+        """T: pursuers, evaders and obstacles (the blank column is index T)."""
+        return self.entity_z.shape[1] - 1
+
+    @property
+    def pursuer_z(self) -> np.ndarray:
+        """[B, N] complex: pursuer centres x + iy."""
+        return self.entity_z[:, : self.num_pursuers]
+
+    @property
+    def evader_z(self) -> np.ndarray:
+        """[B, M] complex."""
+        return self.entity_z[:, self.num_pursuers : self.num_pursuers + self.num_evaders]
+
+    @property
+    def obstacle_z(self) -> np.ndarray:
+        """[B, O] complex."""
+        return self.entity_z[:, self.num_pursuers + self.num_evaders : -1]
+
+    @property
+    def pursuer_pursuer(self) -> np.ndarray:
+        """[B, N, N]."""
+        return self.distance[:, : self.num_pursuers, : self.num_pursuers]
+
+    @property
+    def pursuer_evader(self) -> np.ndarray:
+        """[B, N, M]."""
+        n = self.num_pursuers
+        return self.distance[:, :n, n : n + self.num_evaders]
+
+    @property
+    def pursuer_obstacle(self) -> np.ndarray:
+        """[B, N, O]."""
+        n = self.num_pursuers
+        return self.distance[:, :n, n + self.num_evaders : -1]
+
+    @property
+    def evader_evader(self) -> np.ndarray:
+        """[B, M, M]."""
+        n = self.num_pursuers
+        return self.distance[:, n:, n : n + self.num_evaders]
+
+    @property
+    def evader_obstacle(self) -> np.ndarray:
+        """[B, M, O]."""
+        return self.distance[:, self.num_pursuers :, self.num_pursuers + self.num_evaders : -1]
+
+
+@dataclass(frozen=True)
+class SlotGroup:
+    """`slots` slots filled with the nearest candidates among entity columns [start, stop)."""
+
+    start: int
+    stop: int
+    slots: int
+
+
+def nearest_slots(key: np.ndarray, groups: tuple[SlotGroup, ...]) -> np.ndarray:
+    """Entity columns of each group's nearest candidates, nearest first: [B, X, S].
+
+    key [B, X, T + 1]: distance (m) of each candidate, inf for the others; column T
+    is the blank. S = the groups' slots in all, group after group. A group's slots
+    beyond its candidates hold entities with key inf or the blank column T.
+    """
+    num_envs, num_rows, width = key.shape
+    parts = []
+    for group in groups:
+        filled = min(group.slots, group.stop - group.start)
+        if filled:
+            parts.append(np.argsort(key[..., group.start : group.stop], axis=-1)[..., :filled] + group.start)
+        if group.slots > filled:
+            parts.append(np.broadcast_to(width - 1, (num_envs, num_rows, group.slots - filled)))
+    return np.concatenate(parts, axis=-1)
+
+
+def per_entity(pursuers: np.ndarray, evaders: np.ndarray, obstacles: np.ndarray, blank: float = 0.0) -> np.ndarray:
+    """One value per entity column: [B, N], [B, M], [B, O] and the blank's value -> [B, T + 1]."""
+    blanks = np.full((pursuers.shape[0], 1), blank, np.result_type(pursuers, evaders, obstacles))
+    return np.concatenate([pursuers, evaders, obstacles, blanks], axis=1)
+
+
+def candidate_key(distance: np.ndarray, first_row: int, limit: np.ndarray) -> np.ndarray:
+    """Distances of the candidates, inf for the others: the key of `nearest_slots`.
+
+    distance [B, X, T + 1] m from the robots of rows first_row .. first_row + X - 1;
+    limit [B, T + 1] m: the largest distance at which each entity is a candidate
+    (negative: never; give the blank -1). A robot is never its own candidate.
+    """
+    candidate = (distance <= limit[:, None, :]) & not_self_columns(first_row, distance.shape[1], distance.shape[2])
+    return np.where(candidate, distance, np.inf)
 
 
 @lru_cache(maxsize=256)
 def _grid(num_envs: int, num_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Broadcastable (env [B, 1, 1], row [1, X, 1]) indices for per-row gathers."""
+    """Broadcastable (env [B, 1, 1], row [1, X, 1]) indices for gathers."""
     return np.arange(num_envs)[:, None, None], np.arange(num_rows)[None, :, None]
 
 
-def nearest_slots(distance: np.ndarray, valid: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The k nearest valid entities of each observer, nearest first.
+def take(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Per-environment gather: values [B, T + 1] by entity columns [B, X, S] -> [B, X, S]."""
+    return values[_grid(values.shape[0], 1)[0], columns]
 
-    distance [B, X, Y] m and valid [B, X, Y] bool -> (index [B, X, k] int64,
-    present [B, X, k] bool, distance [B, X, k] m). Empty slots have index 0,
-    present False and distance 0.
-    """
-    num_envs, num_rows, num = distance.shape
-    key = np.where(valid, distance, np.inf)
-    if num < k:  # empty columns to fill the slots
-        key = np.concatenate([key, np.full((num_envs, num_rows, k - num), np.inf)], axis=-1)
-    index = np.argsort(key, axis=-1)[..., :k]
-    env, row = _grid(num_envs, num_rows)
-    dist = key[env, row, index]
-    present = dist < np.inf
-    return np.where(present, index, 0), present, np.where(present, dist, 0.0)
+
+def take_rows(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Per-row gather: values [B, X, T + 1] by columns [B, X, S] -> [B, X, S]."""
+    env, row = _grid(*values.shape[:2])
+    return values[env, row, columns]
 
 
 @lru_cache(maxsize=64)
@@ -88,15 +170,10 @@ def not_self(num: int) -> np.ndarray:
     return ~np.eye(num, dtype=bool)
 
 
-def gather(values: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """Per-environment gather: values [B, Y, ...], index [B, X, k] -> [B, X, k, ...].
-
-    With no entities (Y = 0) every slot is empty and gets zeros.
-    """
-    if values.shape[1] == 0:
-        return np.zeros(index.shape + values.shape[2:], values.dtype)
-    env, _ = _grid(values.shape[0], 1)
-    return values[env, index]
+@lru_cache(maxsize=64)
+def not_self_columns(first_row: int, num_rows: int, width: int) -> np.ndarray:
+    """[num_rows, width] bool: False where column == first_row + row (an entity is not its own neighbour)."""
+    return np.arange(width)[None, :] != (first_row + np.arange(num_rows))[:, None]
 
 
 def bearing(local: np.ndarray) -> np.ndarray:

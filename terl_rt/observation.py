@@ -7,11 +7,22 @@ ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O].
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from terl_rt.dynamics import as_complex
-from terl_rt.geometry import Geometry, bearing, gather, heading, nearest_slots, not_self
+from terl_rt.geometry import (
+    Geometry,
+    SlotGroup,
+    bearing,
+    candidate_key,
+    heading,
+    nearest_slots,
+    per_entity,
+    take,
+    take_rows,
+)
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -72,9 +83,19 @@ def pursuit_status(
     return near.any(axis=-1).astype(np.float64)
 
 
-def _tokens(columns: list[np.ndarray], present: np.ndarray) -> np.ndarray:
-    """Stack feature columns [B, X, k] into float32 tokens [B, X, k, F], zero where absent."""
-    return (np.stack(columns, axis=-1) * present[..., None]).astype(np.float32)
+@lru_cache(maxsize=64)
+def observation_groups(num_pursuers: int, num_evaders: int, num_obstacles: int, evader_slots: int) -> tuple[SlotGroup, ...]:
+    """Entity columns and slots of the teammate, evader and obstacle groups, in token order."""
+    obstacles = num_pursuers + num_evaders
+    return (
+        SlotGroup(0, num_pursuers, TEAMMATE_SLOTS),
+        SlotGroup(num_pursuers, obstacles, evader_slots),
+        SlotGroup(obstacles, obstacles + num_obstacles, OBSTACLE_SLOTS),
+    )
+
+
+OBSTACLE_COLUMNS = [0, 1, 6, 4, 5]
+"""Obstacle token columns within the shared slot features (px, py, vx, vy, d, bearing, extra)."""
 
 
 def pursuer_observations(
@@ -84,8 +105,15 @@ def pursuer_observations(
 
     Rows of collided pursuers are computed like the others and carry no meaning.
     Collided pursuers and encircled evaders are perceived by nobody.
+
+    The three groups share one pass: every slot (teammates, then evaders, then
+    obstacles; S = 5 + E + 5) gets the same features [px, py, vx, vy, d, bearing,
+    extra] in the ego frame, where extra is the teammate's pursuit status, the
+    evader's heading or the obstacle's radius; each group's tokens are its columns.
     """
     num_envs, num_pursuers = state.pursuer_active.shape
+    num_evaders, num_obstacles = state.evader_active.shape[1], state.obstacle_r.shape[1]
+    distance = geometry.distance[:, :num_pursuers]  # [B, N, T + 1] m
     own_z = geometry.pursuer_z[..., None]  # [B, N, 1] complex m
     to_ego = np.exp(-1j * state.pursuer_theta)[..., None]  # [B, N, 1]: rotation by -theta
     pursuer_vel, evader_vel = as_complex(state.pursuer_vel), as_complex(state.evader_vel)
@@ -94,44 +122,43 @@ def pursuer_observations(
     # ego: own velocity in own frame, nearest obstacle distance (capped at R), status.
     ego_vel = pursuer_vel * to_ego[..., 0]
     d_nearest = np.full((num_envs, num_pursuers), params.perception_radius)
-    if geometry.pursuer_obstacle.shape[-1]:
+    if num_obstacles:
         d_nearest = np.minimum(d_nearest, geometry.pursuer_obstacle.min(axis=-1))
     ego = np.stack([ego_vel.real, ego_vel.imag, d_nearest, status], axis=-1).astype(np.float32)
 
-    # teammates: nearest perceived active pursuers other than oneself.
-    perceived = (
-        (geometry.pursuer_pursuer <= params.perception_radius + params.robot_radius)
-        & state.pursuer_active[:, None, :]
-        & not_self(num_pursuers)
+    # Candidates: perceived active teammates other than oneself, active evaders at
+    # any distance, perceived obstacles.
+    limit = per_entity(
+        np.where(state.pursuer_active, params.perception_radius + params.robot_radius, -1.0),
+        np.where(state.evader_active, np.inf, -1.0),
+        params.perception_radius + state.obstacle_r,
+        blank=-1.0,
     )
-    idx, present_t, dist = nearest_slots(geometry.pursuer_pursuer, perceived, TEAMMATE_SLOTS)
-    pos = (gather(geometry.pursuer_z, idx) - own_z) * to_ego
-    vel = gather(pursuer_vel, idx) * to_ego
-    teammates = _tokens(
-        [pos.real, pos.imag, vel.real, vel.imag, dist, bearing(pos), gather(status, idx)], present_t
-    )
+    key = candidate_key(distance, 0, limit)
+    columns = nearest_slots(key, observation_groups(num_pursuers, num_evaders, num_obstacles, evader_slots))
+    dist = take_rows(key, columns)  # [B, N, S] m, inf in empty slots
+    present = dist < np.inf
 
-    # evaders: nearest active evaders at any distance.
-    idx, present_e, dist = nearest_slots(geometry.pursuer_evader, state.evader_active[:, None, :], evader_slots)
-    pos = (gather(geometry.evader_z, idx) - own_z) * to_ego
-    vel = gather(evader_vel, idx) * to_ego
-    evaders = _tokens([pos.real, pos.imag, vel.real, vel.imag, dist, bearing(pos), heading(vel)], present_e)
-
-    # obstacles: nearest perceived obstacles.
-    reach = params.perception_radius + state.obstacle_r[:, None, :]
-    idx, present_o, dist = nearest_slots(geometry.pursuer_obstacle, geometry.pursuer_obstacle <= reach, OBSTACLE_SLOTS)
-    pos = (gather(geometry.obstacle_z, idx) - own_z) * to_ego
-    obstacles = _tokens([pos.real, pos.imag, gather(state.obstacle_r, idx), dist, bearing(pos)], present_o)
-
-    mask = np.concatenate(
-        [np.ones((num_envs, num_pursuers, 1), bool), present_t, present_e, present_o],
+    # Empty slots get zeros: the bearing and heading of 0 are 0.
+    pos = np.where(present, (take(geometry.entity_z, columns) - own_z) * to_ego, 0.0)
+    vel = take(per_entity(pursuer_vel, evader_vel, np.zeros((num_envs, num_obstacles))), columns)
+    vel = np.where(present, vel * to_ego, 0.0)
+    extra = take(per_entity(status, np.zeros((num_envs, num_evaders)), state.obstacle_r), columns)
+    extra = np.where(present, extra, 0.0)
+    evader_part = slice(TEAMMATE_SLOTS, TEAMMATE_SLOTS + evader_slots)
+    extra[:, :, evader_part] = heading(vel[:, :, evader_part])
+    tokens = np.stack(
+        [pos.real, pos.imag, vel.real, vel.imag, np.where(present, dist, 0.0), bearing(pos), extra],
         axis=-1,
-    )
+        dtype=np.float32,
+    )  # [B, N, S, 7]
+
+    mask = np.concatenate([np.ones((num_envs, num_pursuers, 1), bool), present], axis=-1)
     return Observation(
         ego=ego,
-        teammates=teammates,
-        evaders=evaders,
-        obstacles=obstacles,
+        teammates=np.ascontiguousarray(tokens[:, :, :TEAMMATE_SLOTS]),
+        evaders=np.ascontiguousarray(tokens[:, :, evader_part]),
+        obstacles=tokens[:, :, evader_part.stop :][..., OBSTACLE_COLUMNS],
         mask=mask,
         pursuer_index=np.zeros((num_envs, 1), np.int64) + np.arange(num_pursuers),
     )

@@ -234,7 +234,7 @@ def _check_actions(actions: np.ndarray, active: np.ndarray) -> np.ndarray:
     array = np.asarray(actions)
     if array.shape != active.shape:
         raise ValueError(f"pursuer_actions: expected shape {active.shape} (one per pursuer), got {array.shape}")
-    if not np.issubdtype(array.dtype, np.integer):
+    if array.dtype.kind not in "iu":
         raise ValueError(f"pursuer_actions: expected integer action indices, got dtype {array.dtype}")
     array = np.where(active, array, 0)
     if array.min() < 0 or array.max() >= NUM_PURSUER_ACTIONS:
