@@ -27,6 +27,7 @@ from training.train import (
     observation_rows,
     store,
     train,
+    training_scenario,
 )
 
 
@@ -114,6 +115,14 @@ def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
     # 1,000 steps: stage 2 starts at 2/7 * 1000 = 285.7, so step 286.
     assert curriculum_scenario(285, 1000).name == "curriculum-1"
     assert curriculum_scenario(286, 1000).name == "curriculum-2"
+
+
+def test_a_run_longer_than_its_curriculum_stays_in_the_last_stage():
+    config = tiny_config(total_steps=2000, curriculum_steps=1000)
+    names = {step: training_scenario(config, step).name for step in (0, 286, 999, 1000, 1999)}
+    assert names == {0: "curriculum-1", 286: "curriculum-2", 999: "curriculum-5", 1000: "curriculum-5", 1999: "curriculum-5"}
+    # Without curriculum_steps the boundaries scale to total_steps.
+    assert training_scenario(config.replace(curriculum_steps=0), 999).name == "curriculum-2"
 
 
 # ---------------------------------------------------------------- replay
@@ -228,12 +237,16 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     assert first.env_step == 1600 and first.updates > 0
     assert first.stages == [f"curriculum-{k}" for k in range(1, 6)]
 
-    # Resume for 800 more steps: counters continue, the refill is logged.
-    assert main(["train", "--resume", str(out), "--total-steps", "2400", "--quiet"]) == 0
+    # Extend the finished run by 800 steps: counters continue, the refill is logged,
+    # and the extra steps stay in the last stage of the 1600-step curriculum.
+    extend = ["--total-steps", "2400", "--curriculum-steps", "1600", "--quiet"]
+    assert main(["train", "--resume", str(out), *extend]) == 0
     second = read_counters(out)
     assert second.env_step == 2400 and second.updates > first.updates
     records = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]
-    assert any(r["kind"] == "resume" and "refilled" in r["note"] for r in records)
+    resumed_at = next(i for i, r in enumerate(records) if r["kind"] == "resume")
+    assert "refilled" in records[resumed_at]["note"]
+    assert {r["stage"] for r in records[resumed_at + 1 :] if r["kind"] == "train"} == {"curriculum-5"}
     assert records[-1]["kind"] == "train" and records[-1]["eval"]["episodes"] == 2
 
     onnx_path = tmp_path / "exported" / "tiny.onnx"

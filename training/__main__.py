@@ -30,6 +30,10 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
                         help="JSON config file (unknown keys are errors; missing keys take the defaults)")
     parser.add_argument("--total-steps", type=int, metavar="K",
                         help="environment steps in all (default from the config: 7,000,000)")
+    parser.add_argument("--curriculum-steps", type=int, metavar="K",
+                        help="environment steps the curriculum is scaled to (default: --total-steps); "
+                             "to extend a finished run, resume with a larger --total-steps and this "
+                             "set to its old length: the extra steps stay in the last stage")
     parser.add_argument("--num-envs", type=int, metavar="B", help="environments stepped together (default 8)")
     parser.add_argument("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)")
     parser.add_argument("--seed", type=int, metavar="S", help="random seed (default 1)")
@@ -81,7 +85,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
 
 def apply_overrides(config: Config, args: argparse.Namespace) -> Config:
     """Replace the fields given on the command line."""
-    names = ("total_steps", "num_envs", "threads", "seed", "hidden", "layers", "heads")
+    names = ("total_steps", "curriculum_steps", "num_envs", "threads", "seed", "hidden", "layers", "heads")
     changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     return config.replace(**changes)
 

@@ -47,7 +47,10 @@ class Config:
     num_envs: int = 8
     """B: environments stepped together; one batched forward acts for all their pursuers."""
     curriculum: bool = True
-    """walk the five curriculum stages (world.md section 11), scaled to total_steps."""
+    """walk the five curriculum stages (world.md section 11), scaled to curriculum_steps."""
+    curriculum_steps: int = 0
+    """environment steps the curriculum's stage boundaries are scaled to (0: total_steps);
+    a longer run stays in the last stage after them (how a finished run is extended)."""
     scenario: str = "small-15"
     """preset trained on when curriculum is false (ignored otherwise)."""
 
@@ -201,7 +204,7 @@ def _validate(config: Config) -> None:
     for name in positive:
         if getattr(config, name) < 1:
             raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
-    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed"):
+    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps"):
         if getattr(config, name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
     # A tiny probe tells transformer bodies (which record their layers) from the others.

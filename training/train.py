@@ -53,7 +53,8 @@ from training.replay import ReplayBatch, ReplayBuffer
 
 CURRICULUM_LENGTH = 7_000_000
 """Environment steps of the published curriculum (world.md section 11); runs of other
-lengths scale its stage boundaries, so stages start at 0, 2/7, 4/7, 5/7, 6/7 of a run."""
+lengths scale its stage boundaries, so stages start at 0, 2/7, 4/7, 5/7, 6/7 of a run
+(of `Config.curriculum_steps` when set)."""
 RECENT_EPISODES = 100
 """Finished episodes behind the success rate and mean return of the progress line and log."""
 PROGRESS_SECONDS = 1.0
@@ -71,7 +72,7 @@ def curriculum_scenario(env_step: int, total_steps: int) -> Scenario:
 def training_scenario(config: Config, env_step: int) -> Scenario:
     """The scenario trained on at `env_step`: the scaled curriculum, or the fixed preset."""
     if config.curriculum:
-        return curriculum_scenario(env_step, config.total_steps)
+        return curriculum_scenario(env_step, config.curriculum_steps or config.total_steps)
     return Scenario.preset(config.scenario)
 
 
