@@ -77,8 +77,9 @@ def integrate(
     equals clip(s* + (s - s*) (1 - k dt)^j, 0, s_max); otherwise it is iterated.
     """
     count = np.arange(substeps + 1)[:, None, None]  # sub-step index j, [S+1, 1, 1]
-    thetas = np.mod(theta + count * (yaw_rate * dt), TWO_PI)  # [S+1, B, R]
-    thetas = np.where(thetas >= TWO_PI, 0.0, thetas)  # mod of a tiny negative angle rounds to 2pi
+    turned = theta + count[:substeps] * (yaw_rate * dt)  # [S, B, R] rad, unwrapped (only cos, sin are taken)
+    final_theta = np.mod(theta + substeps * (yaw_rate * dt), TWO_PI)
+    final_theta[final_theta >= TWO_PI] = 0.0  # mod of a tiny negative angle rounds to 2pi
     if drag.max(initial=0.0) * dt <= 1.0:
         terminal = acceleration / drag  # s*, [B, R]
         speeds = np.minimum(np.maximum(terminal + (speed - terminal) * (1.0 - drag * dt) ** count, 0.0), max_speed)
@@ -88,27 +89,53 @@ def integrate(
         for j in range(substeps):
             s = speeds[j]
             speeds[j + 1] = np.minimum(np.maximum(s + (acceleration - drag * s) * dt, 0.0), max_speed)
-    steer = speeds[:substeps] * np.exp(1j * thetas[:substeps])  # [S, B, R] complex m/s
+    steer = speeds[:substeps] * np.exp(1j * turned)  # [S, B, R] complex m/s
     step_scale = moving * dt  # [B, R]: 0 freezes a robot
 
-    z = as_complex(xy)
-    core_z = as_complex(core_xy)
+    z = as_complex(xy).copy()  # [B, R] complex m, advanced in place
     drift = steer * step_scale  # [S, B, R] complex m: the steer part of each sub-step's move
-    if core_z.shape[1] > 0:
+    if core_xy.shape[1] > 0:
         # The current's part of a move, folded into one weight per (robot, core):
-        # dt * i * circulation / max(d^2, r0^2) times (core - x), as in vortex_current.
-        core_row = core_z[:, None, :]  # [B, 1, V]
+        # dt * i * circulation, times (core - x) / max(d^2, r0^2) as in vortex_current.
+        currents = _CurrentSum(z, as_complex(core_xy), core_radius)
         weight = (1j * circulation)[:, None, :] * step_scale[:, :, None]  # [B, R, V]
-        floor = core_radius * core_radius
         for k in range(substeps - 1):
-            diff = core_row - z[:, :, None]
-            dist = np.abs(diff)
-            z = z + drift[k] + (weight / np.maximum(dist * dist, floor) * diff).sum(axis=2)
-        velocity = steer[-1] + vortex_current(z, core_z, circulation, core_radius)
+            z += currents(weight)  # the current at the sub-step's starting point
+            z += drift[k]
+        velocity = steer[-1] + currents((1j * circulation)[:, None, :])
     else:
-        z = z + drift[:-1].sum(axis=0)
+        z += drift[:-1].sum(axis=0)
         velocity = steer[-1]
-    z = z + velocity * step_scale
+    z += velocity * step_scale
 
-    velocity = np.where(moving, velocity, 0.0)
-    return as_pairs(z), np.where(moving, thetas[-1], theta), np.where(moving, speeds[-1], speed), as_pairs(velocity)
+    if moving.all():
+        return as_pairs(z), final_theta, speeds[-1], as_pairs(velocity)
+    velocity[~moving] = 0.0
+    return as_pairs(z), np.where(moving, final_theta, theta), np.where(moving, speeds[-1], speed), as_pairs(velocity)
+
+
+class _CurrentSum:
+    """sum over cores of weight * (core - z) / max(|core - z|^2, r0^2) at the points z,
+    which the caller moves in place between calls: [B, R] complex for weights [B, R or 1, V].
+
+    The buffers are reused and every array is complex (d^2 as diff * conj(diff)):
+    at the sizes of a world, NumPy's per-call and mixed real/complex costs dominate.
+    """
+
+    def __init__(self, z: np.ndarray, core_z: np.ndarray, core_radius: float) -> None:
+        self.z_column = z[:, :, None]  # [B, R, 1], a view of the caller's points
+        self.core_row = core_z[:, None, :]  # [B, 1, V]
+        self.floor = complex(core_radius * core_radius)
+        shape = (z.shape[0], z.shape[1], core_z.shape[1])
+        self.diff, self.scaled = np.empty(shape, np.complex128), np.empty(shape, np.complex128)
+        self.total = np.empty(z.shape, np.complex128)
+
+    def __call__(self, weight: np.ndarray) -> np.ndarray:
+        diff, scaled = self.diff, self.scaled
+        np.subtract(self.core_row, self.z_column, out=diff)
+        np.conjugate(diff, out=scaled)
+        np.multiply(scaled, diff, out=scaled)  # d^2 + 0i
+        np.maximum(scaled, self.floor, out=scaled)
+        np.divide(weight, scaled, out=scaled)
+        np.multiply(scaled, diff, out=scaled)
+        return np.add.reduce(scaled, axis=2, out=self.total)

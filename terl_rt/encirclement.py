@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.dynamics import TWO_PI
-from terl_rt.geometry import Geometry, heading, not_self
+from terl_rt.geometry import Geometry, heading, not_self, not_self_columns, per_entity
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -17,13 +17,14 @@ def collisions(state: WorldState, geometry: Geometry, params: WorldParams) -> np
     evader or an obstacle (centre distance minus both radii <= 0), after the move."""
     num_pursuers = state.pursuer_active.shape[1]
     r = params.robot_radius
-    active = state.pursuer_active
-    hit_pursuer = (
-        (geometry.pursuer_pursuer <= 2 * r) & active[:, None, :] & not_self(num_pursuers)
-    ).any(-1)
-    hit_evader = ((geometry.pursuer_evader <= 2 * r) & state.evader_active[:, None, :]).any(-1)
-    hit_obstacle = (geometry.pursuer_obstacle <= r + state.obstacle_r[:, None, :]).any(-1)
-    return active & (hit_pursuer | hit_evader | hit_obstacle)
+    contact = per_entity(
+        np.where(state.pursuer_active, 2 * r, -1.0),
+        np.where(state.evader_active, 2 * r, -1.0),
+        r + state.obstacle_r,
+        blank=-1.0,
+    )  # [B, T + 1] m: the centre distance of a contact with each entity column (-1: none)
+    touching = (geometry.distance[:, :num_pursuers] <= contact[:, None, :]) & not_self_columns(0, num_pursuers, contact.shape[1])
+    return state.pursuer_active & touching.any(-1)
 
 
 @dataclass(frozen=True)

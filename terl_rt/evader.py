@@ -14,7 +14,7 @@ import numpy as np
 
 from terl_rt.actions import EVADER_YAW_RATES
 from terl_rt.dynamics import TWO_PI, as_complex
-from terl_rt.geometry import Geometry, SlotGroup, candidate_key, nearest_slots, per_entity, take, take_rows
+from terl_rt.geometry import Geometry, SlotGroup, candidate_key, entity_table, nearest_slots, per_entity, take, take_rows
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -102,8 +102,8 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     Slots: APF_SLOTS obstacles, then APF_SLOTS pursuers, then APF_SLOTS evaders.
     An empty slot has an infinite distance, so its unit vector and force are 0.
     """
-    num_envs, num_pursuers = state.pursuer_active.shape
-    num_evaders, num_obstacles = state.evader_active.shape[1], state.obstacle_r.shape[1]
+    num_pursuers, num_evaders = geometry.num_pursuers, geometry.num_evaders
+    num_obstacles = state.obstacle_r.shape[1]
     distance = geometry.distance[:, num_pursuers:]  # [B, M, T + 1] m
     own_z = geometry.evader_z[..., None]
     own_vel = as_complex(state.evader_vel)[..., None]
@@ -120,17 +120,21 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     columns = nearest_slots(key, apf_groups(num_pursuers, num_evaders, num_obstacles))
     d_centre = take_rows(key, columns)  # [B, M, 15] m, inf in empty slots
 
+    # Each slot's entity: position, velocity and APF radius (robots: the body radius).
+    slot = take(
+        entity_table(
+            geometry,
+            (as_complex(state.pursuer_vel), own_vel[..., 0], 0.0),
+            (p.apf_body_radius, p.apf_body_radius, state.obstacle_r),
+        ),
+        columns,
+    )  # [B, M, 15, 3]
+
     # Obstacles push along -p/|p| by their radius; robots (radius = body radius)
     # only when closing in (v_ao >= 0), with the velocity term added.
-    radius = per_entity(
-        np.full((num_envs, num_pursuers), p.apf_body_radius),
-        np.full((num_envs, num_evaders), p.apf_body_radius),
-        state.obstacle_r,
-    )
-    velocity = per_entity(as_complex(state.pursuer_vel), as_complex(state.evader_vel), np.zeros((num_envs, num_obstacles)))
-    unit = (take(geometry.entity_z, columns) - own_z) / d_centre
-    magnitude, d = _push(d_centre, take(radius, columns), p)
-    v_ao = ((own_vel - take(velocity, columns)) * unit.conj()).real
+    unit = (slot[..., 0] - own_z) / d_centre
+    magnitude, d = _push(d_centre, slot[..., 2].real, p)
+    v_ao = ((own_vel - slot[..., 1]) * unit.conj()).real
     velocity_push = np.where(ROBOT_SLOTS & (d < p.apf_d0) & (v_ao > 0), -p.apf_k_v * v_ao * (1.0 / d - 1.0 / p.apf_d0) / d, 0.0)
     along_unit = np.where(~ROBOT_SLOTS | (v_ao >= 0), velocity_push - magnitude, 0.0)
     return (along_unit * unit).sum(-1)

@@ -118,22 +118,56 @@ def nearest_slots(key: np.ndarray, groups: tuple[SlotGroup, ...]) -> np.ndarray:
     key [B, X, T + 1]: distance (m) of each candidate, inf for the others; column T
     is the blank. S = the groups' slots in all, group after group. A group's slots
     beyond its candidates hold entities with key inf or the blank column T.
+
+    One sort for all groups: columns ordered by (group, key), so that group g's
+    columns, nearest first, sit at fixed positions of every row.
     """
-    num_envs, num_rows, width = key.shape
-    parts = []
-    for group in groups:
+    group_rank, positions = _slot_layout(groups, key.shape)
+    order = np.lexsort((key, group_rank), axis=-1)  # [B, X, T + 1]
+    return order[..., positions]
+
+
+@lru_cache(maxsize=256)
+def _slot_layout(groups: tuple[SlotGroup, ...], shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The sort key of `nearest_slots` that orders columns by group, and where each slot
+    lies in the sorted order: (group rank [B, X, T + 1] int, positions [S] int).
+
+    Columns outside every group come after the groups and the blank (column T) last,
+    so that padding slots point to the last position, the blank.
+    """
+    width = shape[-1]
+    rank = np.full(width, len(groups), np.int64)
+    rank[width - 1] = len(groups) + 1
+    positions, offset = [], 0
+    for index, group in enumerate(groups):
+        rank[group.start : group.stop] = index
         filled = min(group.slots, group.stop - group.start)
-        if filled:
-            parts.append(np.argsort(key[..., group.start : group.stop], axis=-1)[..., :filled] + group.start)
-        if group.slots > filled:
-            parts.append(np.broadcast_to(width - 1, (num_envs, num_rows, group.slots - filled)))
-    return np.concatenate(parts, axis=-1)
+        positions += list(range(offset, offset + filled)) + [width - 1] * (group.slots - filled)
+        offset += group.stop - group.start
+    return np.broadcast_to(rank, shape), np.array(positions, np.int64)
 
 
 def per_entity(pursuers: np.ndarray, evaders: np.ndarray, obstacles: np.ndarray, blank: float = 0.0) -> np.ndarray:
     """One value per entity column: [B, N], [B, M], [B, O] and the blank's value -> [B, T + 1]."""
     blanks = np.full((pursuers.shape[0], 1), blank, np.result_type(pursuers, evaders, obstacles))
     return np.concatenate([pursuers, evaders, obstacles, blanks], axis=1)
+
+
+def entity_table(geometry: Geometry, *features: tuple) -> np.ndarray:
+    """Each entity column's position, then its features: [B, T + 1, 1 + F] complex.
+
+    A feature is a (pursuers, evaders, obstacles) triple of values [B, N], [B, M], [B, O]
+    (or scalars); the blank column holds 0. Gathered by `take`, one table gives a slot
+    all its entity's quantities at once.
+    """
+    n, m = geometry.num_pursuers, geometry.num_evaders
+    table = np.zeros(geometry.entity_z.shape + (1 + len(features),), np.complex128)
+    table[..., 0] = geometry.entity_z
+    for column, (pursuers, evaders, obstacles) in enumerate(features, 1):
+        table[:, :n, column] = pursuers
+        table[:, n : n + m, column] = evaders
+        table[:, n + m : -1, column] = obstacles
+    return table
 
 
 def candidate_key(distance: np.ndarray, first_row: int, limit: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ from terl_rt.geometry import (
     SlotGroup,
     bearing,
     candidate_key,
+    entity_table,
     heading,
     nearest_slots,
     per_entity,
@@ -114,17 +115,19 @@ def pursuer_observations(
     num_envs, num_pursuers = state.pursuer_active.shape
     num_evaders, num_obstacles = state.evader_active.shape[1], state.obstacle_r.shape[1]
     distance = geometry.distance[:, :num_pursuers]  # [B, N, T + 1] m
-    own_z = geometry.pursuer_z[..., None]  # [B, N, 1] complex m
-    to_ego = np.exp(-1j * state.pursuer_theta)[..., None]  # [B, N, 1]: rotation by -theta
-    pursuer_vel, evader_vel = as_complex(state.pursuer_vel), as_complex(state.evader_vel)
+    to_ego = np.exp(-1j * state.pursuer_theta)  # [B, N]: rotation by -theta
+    pursuer_vel = as_complex(state.pursuer_vel)
     status = pursuit_status(geometry, state.evader_active, params.related_distance)
 
     # ego: own velocity in own frame, nearest obstacle distance (capped at R), status.
-    ego_vel = pursuer_vel * to_ego[..., 0]
-    d_nearest = np.full((num_envs, num_pursuers), params.perception_radius)
+    ego_vel = pursuer_vel * to_ego
+    ego = np.empty((num_envs, num_pursuers, EGO_FEATURES), np.float32)
+    ego[..., 0] = ego_vel.real
+    ego[..., 1] = ego_vel.imag
+    ego[..., 2] = params.perception_radius
     if num_obstacles:
-        d_nearest = np.minimum(d_nearest, geometry.pursuer_obstacle.min(axis=-1))
-    ego = np.stack([ego_vel.real, ego_vel.imag, d_nearest, status], axis=-1).astype(np.float32)
+        np.minimum(ego[..., 2], geometry.pursuer_obstacle.min(axis=-1), out=ego[..., 2], casting="unsafe")
+    ego[..., 3] = status
 
     # Candidates: perceived active teammates other than oneself, active evaders at
     # any distance, perceived obstacles.
@@ -137,28 +140,37 @@ def pursuer_observations(
     key = candidate_key(distance, 0, limit)
     columns = nearest_slots(key, observation_groups(num_pursuers, num_evaders, num_obstacles, evader_slots))
     dist = take_rows(key, columns)  # [B, N, S] m, inf in empty slots
-    present = dist < np.inf
+    absent = dist == np.inf
 
-    # Empty slots get zeros: the bearing and heading of 0 are 0.
-    pos = np.where(present, (take(geometry.entity_z, columns) - own_z) * to_ego, 0.0)
-    vel = take(per_entity(pursuer_vel, evader_vel, np.zeros((num_envs, num_obstacles))), columns)
-    vel = np.where(present, vel * to_ego, 0.0)
-    extra = take(per_entity(status, np.zeros((num_envs, num_evaders)), state.obstacle_r), columns)
-    extra = np.where(present, extra, 0.0)
+    # Each slot's entity: position, velocity and extra feature.
+    slot = take(
+        entity_table(geometry, (pursuer_vel, as_complex(state.evader_vel), 0.0), (status, 0.0, state.obstacle_r)),
+        columns,
+    )  # [B, N, S, 3]
+    rotation = to_ego[:, :, None]
+    pos = (slot[..., 0] - geometry.pursuer_z[:, :, None]) * rotation
+    vel = slot[..., 1] * rotation
+
+    tokens = np.empty(columns.shape + (TEAMMATE_FEATURES,), np.float32)  # [B, N, S, 7]
+    tokens[..., 0] = pos.real
+    tokens[..., 1] = pos.imag
+    tokens[..., 2] = vel.real
+    tokens[..., 3] = vel.imag
+    tokens[..., 4] = dist
+    tokens[..., 5] = bearing(pos)
+    tokens[..., 6] = slot[..., 2].real
     evader_part = slice(TEAMMATE_SLOTS, TEAMMATE_SLOTS + evader_slots)
-    extra[:, :, evader_part] = heading(vel[:, :, evader_part])
-    tokens = np.stack(
-        [pos.real, pos.imag, vel.real, vel.imag, np.where(present, dist, 0.0), bearing(pos), extra],
-        axis=-1,
-        dtype=np.float32,
-    )  # [B, N, S, 7]
+    tokens[:, :, evader_part, 6] = heading(vel[:, :, evader_part])
+    tokens[absent] = 0.0  # empty slots are all zeros
 
-    mask = np.concatenate([np.ones((num_envs, num_pursuers, 1), bool), present], axis=-1)
+    mask = np.empty((num_envs, num_pursuers, 1 + columns.shape[-1]), bool)
+    mask[..., 0] = True
+    np.logical_not(absent, out=mask[..., 1:])
     return Observation(
         ego=ego,
-        teammates=np.ascontiguousarray(tokens[:, :, :TEAMMATE_SLOTS]),
-        evaders=np.ascontiguousarray(tokens[:, :, evader_part]),
+        teammates=tokens[:, :, :TEAMMATE_SLOTS].copy(),
+        evaders=tokens[:, :, evader_part].copy(),
         obstacles=tokens[:, :, evader_part.stop :][..., OBSTACLE_COLUMNS],
         mask=mask,
-        pursuer_index=np.zeros((num_envs, 1), np.int64) + np.arange(num_pursuers),
+        pursuer_index=np.repeat(np.arange(num_pursuers)[None], num_envs, axis=0),
     )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from terl_rt.encirclement import Encirclement
-from terl_rt.geometry import Geometry, not_self
+from terl_rt.geometry import Geometry, not_self_columns, per_entity
 from terl_rt.params import WorldParams
 
 REWARD_TERMS = ("time", "collision", "emergency", "guidance", "cooperation", "boundary", "completion")
@@ -39,25 +39,26 @@ def reward_terms(
     """
     p = params
     num_pursuers = recipients.shape[1]
-    terms = np.zeros(recipients.shape + (len(REWARD_TERMS),))
+    terms = np.empty(recipients.shape + (len(REWARD_TERMS),))
     terms[..., 0] = p.reward_time
-    terms[..., 1] = np.where(collided, p.reward_collision, 0.0)
+    terms[..., 1] = collided * p.reward_collision
 
-    # emergency: an active teammate, active evader or perceived obstacle closer than d_safe.
-    teammate_near = (
-        (geometry.pursuer_pursuer < p.d_safe) & pursuer_active[:, None, :] & not_self(num_pursuers)
-    ).any(-1)
-    evader_near = ((geometry.pursuer_evader < p.d_safe) & evader_active[:, None, :]).any(-1)
-    obstacle_near = (
-        (geometry.pursuer_obstacle < p.d_safe)
-        & (geometry.pursuer_obstacle <= p.perception_radius + obstacle_r[:, None, :])
-    ).any(-1)
-    terms[..., 2] = np.where(teammate_near | evader_near | obstacle_near, p.reward_emergency, 0.0)
+    # emergency: an active teammate, active evader or perceived obstacle closer than
+    # d_safe; one pass over every entity column with each column's own bound
+    # ("perceived" = within R + r, inclusive: below the next float up).
+    perceived = np.nextafter(p.perception_radius + obstacle_r, np.inf)
+    bound = per_entity(
+        np.where(pursuer_active, p.d_safe, 0.0),
+        np.where(evader_active, p.d_safe, 0.0),
+        np.minimum(perceived, p.d_safe),
+    )  # [B, T + 1] m; 0 never holds (distance < 0)
+    near = (geometry.distance[:, :num_pursuers] < bound[:, None, :]) & not_self_columns(0, num_pursuers, bound.shape[1])
+    terms[..., 2] = near.any(-1) * p.reward_emergency
 
-    # guidance: summed over active evaders.
+    # guidance: summed over active evaders; full within d_encircle (exp(0) = 1).
     d_e = geometry.pursuer_evader
-    guidance = np.where(d_e <= p.d_encircle, p.reward_guidance, p.reward_guidance * np.exp(-p.guidance_decay * (d_e - p.d_encircle)))
-    terms[..., 3] = (guidance * evader_active[:, None, :]).sum(-1)
+    guidance = np.exp(-p.guidance_decay * np.maximum(d_e - p.d_encircle, 0.0))
+    terms[..., 3] = p.reward_guidance * (guidance @ evader_active[:, :, None].astype(np.float64))[..., 0]
 
     # cooperation: P active pursuers within related_distance of each active evader.
     around = (d_e <= p.related_distance) & pursuer_active[:, :, None] & evader_active[:, None, :]  # [B, N, M]
@@ -67,19 +68,19 @@ def reward_terms(
         p.reward_crowding,
         np.where(count >= 3, p.reward_cooperation * np.maximum(0.0, 1.0 - p.cooperation_slope * (count - 3)), 0.0),
     )
-    cooperation = (around * per_evader[:, None, :]).sum(-1)
+    cooperation = (around @ per_evader[:, :, None])[..., 0]
     imbalance = ((count < 3) & evader_active).any(-1) & ((count > 5) & evader_active).any(-1)  # [B]
-    terms[..., 4] = cooperation + np.where(imbalance, p.reward_imbalance, 0.0)[:, None]
+    terms[..., 4] = cooperation + (imbalance * p.reward_imbalance)[:, None]
 
     # boundary: outside the arena.
-    width, height = arena
-    x, y = pursuer_xy[..., 0], pursuer_xy[..., 1]
-    outside = (x < 0) | (x > width) | (y < 0) | (y > height)
-    terms[..., 5] = np.where(outside, p.reward_boundary, 0.0)
+    outside = ((pursuer_xy < 0.0) | (pursuer_xy > arena)).any(-1)
+    terms[..., 5] = outside * p.reward_boundary
 
     # completion: 120 * (2 pi / n_k) * exp(-sigma) for each pursuer that encircled.
     ring = encirclement.ring_size
     terms[..., 6] = np.where(
         ring > 0, p.reward_completion * (2 * np.pi / np.maximum(ring, 1)) * np.exp(-encirclement.gap_std), 0.0
     )
-    return terms * recipients[..., None]
+    terms *= recipients[..., None]
+    terms += 0.0  # -0.0 (a penalty times false) becomes 0.0
+    return terms

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import json
 
 import click
@@ -57,7 +58,7 @@ def scaling(steps: int, as_json: bool) -> None:
     """How the cost of one step grows with the team: large-80's world with 15, 80, 200
     and 400 pursuers (evaders a quarter of that, arena grown to keep the density)."""
     rows = []
-    with click.progressbar(SCALING_PURSUERS, label="scaling", file=click.get_text_stream("stderr")) as counts:
+    with click.progressbar(SCALING_PURSUERS, label="scaling", file=sys.stderr) as counts:
         for pursuers in counts:
             rows.append(bench_sim(scaling_scenario(pursuers), steps).to_dict())
     if as_json:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import sys
 import click
 
 import terl_rt
@@ -75,7 +76,7 @@ def evaluate_with_progress(
     results = []
     for scenario in scenarios:
         with click.progressbar(
-            length=episodes, label=f"{scenario.name:<14}", file=click.get_text_stream("stderr"),
+            length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
             show_pos=True,
         ) as bar:
             results.append(evaluate(
