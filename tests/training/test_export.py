@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from terl_rt.actions import PURSUER_ACTIONS
+from training import export
 from training.export import ParityError, check_parity, example_inputs, export_onnx, read_metadata
 from training.networks import build_network, network_classes
 
@@ -126,3 +127,21 @@ def test_parity_cases_include_real_observations_for_each_paper_evader_slot_count
     assert "E=8 observations of small-11" in names
     assert "E=14 observations of medium-48" in names
     assert "E=20 observations of large-72" in names
+
+
+def test_parity_tolerance_is_relative_to_large_outputs():
+    # Q-values of a trained policy are in the hundreds: float32 round-off of 1e-4 there is parity.
+    # 1000.05 vs 1000: 0.05 / 1000 = 5e-5 <= 1e-4; 0.5002 vs 0.5: 2e-4 / 1 > 1e-4.
+    assert export._compare("q", np.array([1000.0, -3.0]), np.array([1000.05, -3.0]), 1e-4) == pytest.approx(5e-5)
+    with pytest.raises(ParityError, match="q"):
+        export._compare("q", np.array([0.5]), np.array([0.5002]), 1e-4)
+
+
+def test_export_that_fails_parity_leaves_no_file(tmp_path, monkeypatch):
+    def disagree(model, path):
+        raise ParityError("q_values: forced disagreement")
+
+    monkeypatch.setattr(export, "check_parity", disagree)
+    with pytest.raises(ParityError, match="forced"):
+        export_onnx(build_network("iqn", hidden=16, layers=0, heads=0), tmp_path / "policy.onnx", {})
+    assert list(tmp_path.iterdir()) == []
