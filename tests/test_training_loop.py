@@ -260,6 +260,15 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     simulator.step(actions)
 
 
+def test_resume_with_a_new_learning_rate_replaces_the_checkpoints(tmp_path):
+    config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0)
+    train(config, tmp_path / "run", show_progress=False)
+    assert main(["train", "--resume", str(tmp_path / "run"), "--total-steps", "1000", "--learning-rate", "5e-5", "--quiet"]) == 0
+    saved = torch.load(tmp_path / "run" / "optimizer.pt", weights_only=True)
+    assert [group["lr"] for group in saved["param_groups"]] == [5e-5]
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["learning_rate"] == 5e-5
+
+
 def test_dqn_trains_and_exports(tmp_path):
     config = tiny_config(model="dqn", layers=0, heads=0, total_steps=800, eval_frequency=0)
     counters = train(config, tmp_path / "dqn", show_progress=False)

@@ -34,6 +34,9 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
                         help="environment steps the curriculum is scaled to (default: --total-steps); "
                              "to extend a finished run, resume with a larger --total-steps and this "
                              "set to its old length: the extra steps stay in the last stage")
+    parser.add_argument("--learning-rate", type=float, metavar="LR",
+                        help="Adam learning rate (default from the config); with --resume, it replaces "
+                             "the checkpoint's, e.g. to fine-tune a finished run with a smaller one")
     parser.add_argument("--num-envs", type=int, metavar="B", help="environments stepped together (default 8)")
     parser.add_argument("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)")
     parser.add_argument("--seed", type=int, metavar="S", help="random seed (default 1)")
@@ -85,7 +88,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
 
 def apply_overrides(config: Config, args: argparse.Namespace) -> Config:
     """Replace the fields given on the command line."""
-    names = ("total_steps", "curriculum_steps", "num_envs", "threads", "seed", "hidden", "layers", "heads")
+    names = ("total_steps", "curriculum_steps", "learning_rate", "num_envs", "threads", "seed", "hidden", "layers", "heads")
     changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     return config.replace(**changes)
 

@@ -1,4 +1,4 @@
-"""Training curves from a run's metrics.jsonl: success rate and return against environment steps."""
+"""Training curves from a run's metrics.jsonl: success rate, return and collision ratio against environment steps."""
 
 from __future__ import annotations
 
@@ -29,8 +29,9 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     """Write a PNG of the training curves of a run.
 
     Top: success rate of the recent episodes (line) and of the greedy evaluations
-    (points); bottom: mean per-pursuer return of the recent episodes. Curriculum
-    stage starts are dashed vertical lines. x axis: environment steps.
+    (points); middle: mean per-pursuer return of the recent episodes; bottom: their
+    collision ratio (where logged). Curriculum stage starts are dashed vertical lines,
+    resumes dotted ones (the replay buffer starts empty there). x axis: environment steps.
     """
     try:
         import matplotlib
@@ -44,10 +45,11 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
     evals = [r for r in records if r.get("kind") == "train" and r.get("eval")]
     stages = [r for r in records if r.get("kind") == "stage"]
+    resumes = [r for r in records if r.get("kind") == "resume"]
     if not train:
         raise CurvesError(f"{metrics_path}: no training record with finished episodes yet")
 
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, (top, middle, bottom) = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     steps = [r["env_step"] for r in train]
     top.plot(steps, [r["success_rate"] for r in train], label="recent episodes (exploring)")
     if evals:
@@ -57,14 +59,18 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
         )
     top.set_ylabel("success rate")
     top.set_ylim(-0.05, 1.05)
-    top.legend(loc="upper left")
-    bottom.plot(steps, [r["mean_return"] for r in train])
-    bottom.set_ylabel("return per pursuer")
+    top.legend(loc="center left")
+    middle.plot(steps, [r["mean_return"] for r in train])
+    middle.set_ylabel("return per pursuer")
+    bottom.plot(steps, [r.get("collision_ratio", float("nan")) for r in train])
+    bottom.set_ylabel("collision ratio")
     bottom.set_xlabel("environment steps")
-    for axis in (top, bottom):
+    for axis in (top, middle, bottom):
         axis.grid(alpha=0.3)
         for stage in stages:
             axis.axvline(stage["env_step"], color="grey", linestyle="--", linewidth=0.8)
+        for resume in resumes:
+            axis.axvline(resume["env_step"], color="grey", linestyle=":", linewidth=0.8)
     for stage in stages:
         top.annotate(stage["stage"].replace("curriculum-", "stage "), (stage["env_step"], 1.0),
                      fontsize=7, rotation=90, va="top", ha="right", color="grey")

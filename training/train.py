@@ -323,6 +323,8 @@ def train(
     learning_starts = config.learning_starts
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
+        for group in optimizer.param_groups:  # the config rules: the saved state carries the old rate
+            group["lr"] = config.learning_rate
         learning_starts = counters.env_step + config.learning_starts
     progress = Progress(show_progress, counters.env_step)
     if resume is not None:
