@@ -260,13 +260,17 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     simulator.step(actions)
 
 
-def test_resume_with_a_new_learning_rate_replaces_the_checkpoints(tmp_path):
+def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp_path):
     config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0)
     train(config, tmp_path / "run", show_progress=False)
-    assert main(["train", "--resume", str(tmp_path / "run"), "--total-steps", "1000", "--learning-rate", "5e-5", "--quiet"]) == 0
+    resume = ["--total-steps", "1200", "--learning-rate", "5e-5", "--learning-starts", "200", "--quiet"]
+    assert main(["train", "--resume", str(tmp_path / "run"), *resume]) == 0
     saved = torch.load(tmp_path / "run" / "optimizer.pt", weights_only=True)
     assert [group["lr"] for group in saved["param_groups"]] == [5e-5]
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["learning_rate"] == 5e-5
+    written = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert (written["learning_rate"], written["learning_starts"]) == (5e-5, 200)
+    records = [json.loads(line) for line in (tmp_path / "run" / METRICS_FILE).read_text().splitlines()]
+    assert "refilled for 200 environment steps" in next(r["note"] for r in records if r["kind"] == "resume")
 
 
 def test_dqn_trains_and_exports(tmp_path):

@@ -37,6 +37,9 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learning-rate", type=float, metavar="LR",
                         help="Adam learning rate (default from the config); with --resume, it replaces "
                              "the checkpoint's, e.g. to fine-tune a finished run with a smaller one")
+    parser.add_argument("--learning-starts", type=int, metavar="K",
+                        help="environment steps before the first update (default from the config: 3000); "
+                             "with --resume, the steps that refill the replay buffer first (it is not saved)")
     parser.add_argument("--num-envs", type=int, metavar="B", help="environments stepped together (default 8)")
     parser.add_argument("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)")
     parser.add_argument("--seed", type=int, metavar="S", help="random seed (default 1)")
@@ -88,7 +91,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
 
 def apply_overrides(config: Config, args: argparse.Namespace) -> Config:
     """Replace the fields given on the command line."""
-    names = ("total_steps", "curriculum_steps", "learning_rate", "num_envs", "threads", "seed", "hidden", "layers", "heads")
+    names = ("total_steps", "curriculum_steps", "learning_rate", "learning_starts", "num_envs", "threads", "seed", "hidden", "layers", "heads")
     changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     return config.replace(**changes)
 
