@@ -4,12 +4,14 @@ checkpoint/resume/export round trip (policy.md section 2)."""
 from __future__ import annotations
 
 import json
+from collections import deque
 
 import numpy as np
 import pytest
 import torch
 
 from terl_rt.observation import Observation
+from terl_rt.reward import REWARD_TERMS
 from terl_rt.policy import OnnxPolicy
 from terl_rt.scenario import Scenario, curriculum_stage
 from terl_rt.simulator import Simulator
@@ -25,6 +27,7 @@ from training.train import (
     curriculum_scenario,
     learn,
     observation_rows,
+    recent_means,
     store,
     train,
     training_scenario,
@@ -248,6 +251,7 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     assert "refilled" in records[resumed_at]["note"]
     assert {r["stage"] for r in records[resumed_at + 1 :] if r["kind"] == "train"} == {"curriculum-5"}
     assert records[-1]["kind"] == "train" and records[-1]["eval"]["episodes"] == 2
+    assert "return_terms" in records[-1]
 
     onnx_path = tmp_path / "exported" / "tiny.onnx"
     assert main(["export", str(out), "-o", str(onnx_path)]) == 0
@@ -258,6 +262,18 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     actions = policy.act(simulator.reset())
     assert actions.shape == (3,) and ((0 <= actions) & (actions < 9)).all()
     simulator.step(actions)
+
+
+def test_recent_means_split_the_return_by_reward_term():
+    # Two episodes: returns 10 and -20 per pursuer, split over the 7 terms.
+    first, second = np.array([-5.0, 0, 0, 15.0, 0, 0, 0]), np.array([-10.0, -80.0, 0, 70.0, 0, 0, 0])
+    recent = deque([(True, 10.0, 0.0, 5, first), (False, -20.0, 0.5, 10, second)])
+    means = recent_means(recent)
+    assert means["mean_return"] == -5.0 and means["success_rate"] == 0.5 and means["episode_steps"] == 7.5
+    assert list(means["return_terms"]) == list(REWARD_TERMS)
+    assert means["return_terms"]["time"] == -7.5 and means["return_terms"]["collision"] == -40.0
+    assert sum(means["return_terms"].values()) == pytest.approx(means["mean_return"])
+    assert recent_means(deque())["return_terms"] is None
 
 
 def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp_path):

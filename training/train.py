@@ -15,8 +15,9 @@ of `train_frequency` it crosses, which keeps the published ratio (one update of
 metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
   episodes, updates, stage, epsilon, loss (mean since the last record), success_rate,
-  mean_return (per pursuer: the episode's summed rewards / N), collision_ratio and
-  episode_steps over the last 100 episodes, steps_per_second (this session),
+  mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
+  same split by reward term), collision_ratio and episode_steps over the last 100
+  episodes, steps_per_second (this session),
   wall_seconds (all sessions), eval (the `evaluate` dict, or null);
 - "stage": env_step and the curriculum stage that starts there;
 - "resume": env_step and a note that the replay buffer is being refilled.
@@ -42,6 +43,7 @@ import torch
 from terl_rt.actions import NUM_PURSUER_ACTIONS
 from terl_rt.evaluate import summarize
 from terl_rt.observation import Observation
+from terl_rt.reward import REWARD_TERMS
 from terl_rt.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
 from terl_rt.world import StepResult, World
 from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
@@ -280,16 +282,21 @@ def write_record(path: Path, record: dict[str, Any]) -> None:
         log.write(json.dumps(record) + "\n")
 
 
-def recent_means(recent: deque) -> dict[str, float | None]:
-    """Means over the recent episodes (None when there are none yet)."""
+def recent_means(recent: deque) -> dict[str, float | dict[str, float] | None]:
+    """Means over the recent episodes, each (success, return, collision ratio, steps,
+    return by term [7]); None when there are none yet."""
     if not recent:
-        return {"success_rate": None, "mean_return": None, "collision_ratio": None, "episode_steps": None}
-    success, returns, collisions, steps = (np.mean(column) for column in zip(*recent))
+        return {
+            "success_rate": None, "mean_return": None, "return_terms": None,
+            "collision_ratio": None, "episode_steps": None,
+        }
+    success, returns, collisions, steps, terms = zip(*recent)
     return {
-        "success_rate": float(success),
-        "mean_return": float(returns),
-        "collision_ratio": float(collisions),
-        "episode_steps": float(steps),
+        "success_rate": float(np.mean(success)),
+        "mean_return": float(np.mean(returns)),
+        "return_terms": dict(zip(REWARD_TERMS, np.mean(terms, axis=0).tolist())),
+        "collision_ratio": float(np.mean(collisions)),
+        "episode_steps": float(np.mean(steps)),
     }
 
 
@@ -345,6 +352,7 @@ def train(
     if scenario.name not in counters.stages:
         counters.stages.append(scenario.name)
     episode_returns = np.zeros(num_envs)
+    episode_terms = np.zeros((num_envs, len(REWARD_TERMS)))  # the same split by reward term
     recent: deque = deque(maxlen=RECENT_EPISODES)
     losses: list[float] = []
     last_loss: float | None = None
@@ -359,6 +367,7 @@ def train(
             world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
             observation = world.reset()
             episode_returns[:] = 0.0
+            episode_terms[:] = 0.0
             if scenario.name not in counters.stages:
                 counters.stages.append(scenario.name)
             write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": scenario.name})
@@ -376,12 +385,16 @@ def train(
 
         # --- episode bookkeeping, then restart the ended worlds
         episode_returns += result.reward.sum(axis=1) / scenario.pursuers
+        episode_terms += result.reward_terms.sum(axis=1) / scenario.pursuers
         for env in np.flatnonzero(world.done):
             outcome = world.metrics(env)
-            recent.append((outcome.success, episode_returns[env], outcome.collision_ratio, outcome.steps))
+            recent.append(
+                (outcome.success, episode_returns[env], outcome.collision_ratio, outcome.steps, episode_terms[env].copy())
+            )
             counters.episodes += 1
         if world.done.any():
             episode_returns[world.done] = 0.0
+            episode_terms[world.done] = 0.0
             observation = world.reset(world.done.copy())
         previous_step = counters.env_step
         counters.env_step += num_envs
