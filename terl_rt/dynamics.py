@@ -37,10 +37,7 @@ def vortex_current(z: np.ndarray, core_z: np.ndarray, circulation: np.ndarray, c
     needs no square root, and Rot = [[0, -1], [1, 0]] (clockwise) is a product
     with i; the opposite rotation is folded into the sign of `circulation`.
     """
-    diff = core_z[:, None, :] - z[:, :, None]  # [B, R, V]
-    dist2 = diff.real**2 + diff.imag**2
-    weight = circulation[:, None, :] / np.maximum(dist2, core_radius * core_radius)
-    return 1j * (weight * diff).sum(axis=2)
+    return _CurrentSum(z, core_z, core_radius)((1j * circulation)[:, None, :])
 
 
 def integrate(
@@ -102,7 +99,7 @@ def integrate(
         for k in range(substeps - 1):
             z += currents(weight)  # the current at the sub-step's starting point
             z += drift[k]
-        velocity = steer[-1] + currents((1j * circulation)[:, None, :])
+        velocity = steer[-1] + currents((1j * circulation)[:, None, :])  # vortex_current at z
     else:
         z += drift[:-1].sum(axis=0)
         velocity = steer[-1]
