@@ -95,11 +95,12 @@ def integrate(
         # The current's part of a move, folded into one weight per (robot, core):
         # dt * i * circulation, times (core - x) / max(d^2, r0^2) as in vortex_current.
         currents = _CurrentSum(z, as_complex(core_xy), core_radius)
-        weight = (1j * circulation)[:, None, :] * step_scale[:, :, None]  # [B, R, V]
+        spin = (1j * circulation)[:, None, :]  # [B, 1, V]: i * circulation, the current's weight
+        weight = spin * step_scale[:, :, None]  # [B, R, V]
         for k in range(substeps - 1):
             z += currents(weight)  # the current at the sub-step's starting point
             z += drift[k]
-        velocity = steer[-1] + currents((1j * circulation)[:, None, :])  # vortex_current at z
+        velocity = steer[-1] + currents(spin)  # vortex_current at z
     else:
         z += drift[:-1].sum(axis=0)
         velocity = steer[-1]

@@ -111,8 +111,6 @@ class World:
         self._drag = np.concatenate([np.full(n, p.pursuer_drag), np.full(m, p.evader_drag)])
         self.state: WorldState | None = None
         self.geometry: Geometry | None = None
-        self._circulation: np.ndarray | None = None
-        """[B, V] signed circulation of the cores (dynamics.signed_circulation), set at reset."""
         self.done = np.ones(num_envs, bool)
         """[B] bool: environments whose episode ended (or never started); reset them."""
 
@@ -154,7 +152,6 @@ class World:
             self.state = fresh
         else:
             self.state.assign(mask, fresh)
-        self._circulation = signed_circulation(self.state.vortex_gamma, self.state.vortex_clockwise)  # [B, V]
         self.done[mask] = False
         self.geometry = Geometry.of(self.state)
         return pursuer_observations(self.state, self.geometry, self.params, self.scenario.evader_slots)
@@ -192,7 +189,7 @@ class World:
             control[..., 0], control[..., 1],
             np.concatenate([acted, evader_was_active], 1),
             self._max_speed, self._drag,
-            state.vortex_xy, self._circulation,
+            state.vortex_xy, signed_circulation(state.vortex_gamma, state.vortex_clockwise),
             p.vortex_core_radius, p.dt, p.substeps,
         )
         state.pursuer_xy, state.evader_xy = xy[:, :n], xy[:, n:]
