@@ -32,7 +32,7 @@ import numpy as np
 
 from terl_rt.actions import PURSUER_ACTIONS
 from terl_rt.geometry import Geometry
-from terl_rt.observation import Observation, pursuer_observations
+from terl_rt.observation import Observation, pursuer_observations, pursuit_status
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -92,6 +92,7 @@ def observe(
     obstacles=None,
     evader_slots: int = 8,
     params: WorldParams | None = None,
+    encircled=None,
 ) -> Observation:
     """The observation of one pursuer, leading shape [1] (pursuer_index [0]).
 
@@ -101,7 +102,9 @@ def observe(
     (x, y, radius): world frame, any number of rows, in any order; perception (radius R)
     and slot limits apply as in the simulator. evader_slots: E, the policy's evader
     slots (8 small, 14 medium, 20 large, 12 CC). params: the world's constants
-    (perception radius, robot radius, ...), default WorldParams().
+    (perception radius, robot radius, ...), default WorldParams(). encircled [K, 2]
+    (x, y) of the evaders already encircled: nobody observes them, but as in the
+    published simulator they still set the pursuit status (an evader within 18 m).
     Raises ValueError naming the argument for wrong shapes or non-finite values.
     """
     params = WorldParams() if params is None else params
@@ -120,6 +123,7 @@ def observe(
     mates = _rows("teammates", teammates, 4, "x, y, vx, vy")
     targets = _rows("evaders", evaders, 4, "x, y, vx, vy")
     discs = _rows("obstacles", obstacles, 3, "x, y, radius")
+    done = _rows("encircled", encircled, 2, "x, y")
     if (discs[:, 2] <= 0).any():
         row = int(np.flatnonzero(discs[:, 2] <= 0)[0])
         raise ValueError(f"obstacles[{row}]: radius is {discs[row, 2]}; radii must be > 0")
@@ -130,6 +134,10 @@ def observe(
     pursuer_vel = np.concatenate([velocity[None], mates[:, 2:]])
     pursuer_theta = np.concatenate([[heading], np.arctan2(mates[:, 3], mates[:, 2])]) % (2 * math.pi)
     evader_theta = np.arctan2(targets[:, 3], targets[:, 2]) % (2 * math.pi)
+    # Encircled evaders ride along inactive, at rest.
+    targets = np.concatenate([targets, np.column_stack([done, np.zeros_like(done)])])
+    evader_theta = np.concatenate([evader_theta, np.zeros(len(done))])
+    evader_active = np.arange(len(targets)) < len(targets) - len(done)
     state = WorldState(
         pursuer_xy=pursuer_xy[None],
         pursuer_theta=pursuer_theta[None],
@@ -140,7 +148,7 @@ def observe(
         evader_theta=evader_theta[None],
         evader_speed=np.hypot(targets[:, 2], targets[:, 3])[None],
         evader_vel=targets[None, :, 2:].copy(),
-        evader_active=np.ones((1, len(targets)), bool),
+        evader_active=evader_active[None],
         obstacle_xy=discs[None, :, :2].copy(),
         obstacle_r=discs[None, :, 2].copy(),
         vortex_xy=np.zeros((1, 0, 2)),
@@ -148,7 +156,9 @@ def observe(
         vortex_clockwise=np.zeros((1, 0), bool),
         steps=np.zeros(1, np.int64),
     )
-    every = pursuer_observations(state, Geometry.of(state), params, int(evader_slots))
+    geometry = Geometry.of(state)
+    state.pursuer_pursuing = pursuit_status(geometry, params.related_distance)
+    every = pursuer_observations(state, geometry, params, int(evader_slots))
     return Observation(
         ego=every.ego[0, :1],
         teammates=every.teammates[0, :1],
@@ -169,13 +179,14 @@ def decide(
     obstacles=None,
     evader_slots: int = 8,
     params: WorldParams | None = None,
+    encircled=None,
 ) -> Decision:
     """The policy's action for one pursuer; arguments as in `observe`.
 
     policy: an `OnnxPolicy` (anything with its `evaluate`). Open it once and reuse it.
     """
     observation = observe(
-        ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params
+        ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params, encircled
     )
     output = policy.evaluate(observation)
     action = int(output.actions[0])

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.dynamics import TWO_PI
-from terl_rt.geometry import Geometry, heading, not_self, not_self_columns, per_entity
+from terl_rt.geometry import Geometry, heading, not_self_columns, per_entity, perceived_pursuers
 from terl_rt.params import WorldParams
 from terl_rt.state import WorldState
 
@@ -57,10 +57,23 @@ def ring_gaps(bearings: np.ndarray, member: np.ndarray) -> tuple[np.ndarray, np.
     return np.nanmax(gaps, -1), np.nanmin(gaps, -1), np.nanstd(gaps, -1), count
 
 
-def encircle(state: WorldState, geometry: Geometry, params: WorldParams) -> Encirclement:
-    """The encirclement test of every active pursuer p against every active evader j.
+def remember_perceived(state: WorldState, geometry: Geometry, params: WorldParams, present: np.ndarray) -> None:
+    """Record in state.pursuer_last_seen whom each present pursuer ([B, N] bool) perceives
+    now; a pursuer's row stays as it was from the step it collided on."""
+    seen = perceived_pursuers(geometry, present, params.perception_radius + params.robot_radius)
+    state.pursuer_last_seen = np.where(present[:, :, None], seen, state.pursuer_last_seen)
 
-    1. |p - j| <= d_encircle; 2. at least 2 other active pursuers that p perceives are
+
+def encircle(state: WorldState, geometry: Geometry, params: WorldParams, present: np.ndarray) -> Encirclement:
+    """The encirclement test of every pursuer p against every active evader j.
+
+    present [B, N] bool: the pursuers that count in this step, those active at its
+    start (a pursuer that collides in this step still counts; world.md section 6).
+    state.pursuer_last_seen [B, N, N] holds whom each pursuer perceived in its last
+    step, this one for present pursuers; a pursuer that collided earlier tests from
+    where it stopped with those teammates (world.md section 7), never as a helper.
+
+    1. |p - j| <= d_encircle; 2. at least 2 present pursuers that p perceived are
     strictly within d_encircle of j; 3. the bearings around j of those and p leave
     cyclic gaps with max <= psi and max <= kappa * min. A pursuer makes at most one
     capture a step (the first evader in index order that passes); every evader
@@ -69,15 +82,9 @@ def encircle(state: WorldState, geometry: Geometry, params: WorldParams) -> Enci
     p = params
     num_envs, num_pursuers = state.pursuer_active.shape
     num_evaders = state.evader_active.shape[1]
-    active = state.pursuer_active
-    live = active[:, :, None] & state.evader_active[:, None, :]  # [B, N, M]
-    close = (geometry.pursuer_evader <= p.d_encircle) & live
-    strictly_close = (geometry.pursuer_evader < p.d_encircle) & live
-    perceives = (
-        (geometry.pursuer_pursuer <= p.perception_radius + p.robot_radius)
-        & active[:, None, :] & active[:, :, None]
-        & not_self(num_pursuers)
-    )
+    close = (geometry.pursuer_evader <= p.d_encircle) & state.evader_active[:, None, :]  # [B, N, M]
+    strictly_close = (geometry.pursuer_evader < p.d_encircle) & present[:, :, None] & state.evader_active[:, None, :]
+    perceives = state.pursuer_last_seen & present[:, None, :]  # [B, N, N]
     helpers = np.matmul(perceives.astype(np.float64), strictly_close.astype(np.float64))  # [B, N, M]
     env, pursuer, evader = np.nonzero(close & (helpers >= 2))
 

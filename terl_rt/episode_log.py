@@ -58,6 +58,7 @@ from terl_rt.metrics import EpisodeMetrics
 from terl_rt.reward import REWARD_TERMS
 from terl_rt.scenario import Scenario, ScenarioError
 from terl_rt.simulator import StepInfo
+from terl_rt.world import WORLD_VERSION
 
 LOG_FORMAT = "terl-rt episode log"
 LOG_VERSION = "1"
@@ -250,6 +251,7 @@ class EpisodeLogWriter:
         self._mcap.add_metadata(META_LOG, {
             "format": LOG_FORMAT,
             "version": LOG_VERSION,
+            "world": WORLD_VERSION,
             "terl_rt": _version(),
             **self._policy,
             "policy_path": str(policy_info.get("path", "")),
@@ -488,6 +490,8 @@ class EpisodeLogReader:
         self.size = self.path.stat().st_size
         self.policy: dict[str, Any] = {}
         """The policy the episodes ran: name, sha256, path, metadata."""
+        self.world_version = "1"
+        """terl_rt.world.WORLD_VERSION of the simulator that wrote the log (logs before versions: "1")."""
         self.truncated = False
         """True when the file stops before its footer (cut off, or its writer never closed)."""
         self.problem: str | None = None
@@ -627,6 +631,7 @@ class EpisodeLogReader:
                     raise self._fail(
                         f"episode log version {data.get('version')!r}; this terl-rt reads version {LOG_VERSION}"
                     )
+                self.world_version = data.get("world", "1")
                 self.policy = {
                     "name": data["policy"], "sha256": data["policy_sha256"], "path": data.get("policy_path", ""),
                     "metadata": json.loads(data.get("policy_metadata", "{}")),

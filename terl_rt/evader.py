@@ -108,10 +108,12 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     own_z = geometry.evader_z[..., None]
     own_vel = as_complex(state.evader_vel)[..., None]
 
-    # Candidates: perceived obstacles and perceived active robots other than oneself.
+    # Candidates: perceived obstacles and perceived robots other than oneself: active
+    # evaders, and the pursuers of state.pursuer_perceived (those that collided in the
+    # last step included, world.md section 6).
     reach = p.perception_radius + p.robot_radius
     limit = per_entity(
-        np.where(state.pursuer_active, reach, -1.0),
+        np.where(state.pursuer_perceived, reach, -1.0),
         np.where(state.evader_active, reach, -1.0),
         p.perception_radius + state.obstacle_r,
         blank=-1.0,

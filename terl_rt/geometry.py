@@ -198,6 +198,17 @@ def take_rows(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
     return values[env, row, columns]
 
 
+def perceived_pursuers(geometry: Geometry, present: np.ndarray, perception_reach: float) -> np.ndarray:
+    """[B, N, N] bool: [b, i, j] when pursuers i and j are both present ([B, N] bool),
+    i != j and their centres lie within `perception_reach` (R + r, m) of each other."""
+    num_pursuers = present.shape[1]
+    return (
+        (geometry.pursuer_pursuer <= perception_reach)
+        & present[:, None, :] & present[:, :, None]
+        & not_self(num_pursuers)
+    )
+
+
 @lru_cache(maxsize=64)
 def not_self(num: int) -> np.ndarray:
     """[num, num] bool: True off the diagonal (an entity is not its own neighbour)."""

@@ -75,13 +75,10 @@ class Observation:
         }
 
 
-def pursuit_status(
-    geometry: Geometry, evader_active: np.ndarray, related_distance: float
-) -> np.ndarray:
-    """[B, N] float64: 1.0 where a pursuer's nearest active evader is within
-    `related_distance` m, else 0.0 (evader_active [B, M] bool)."""
-    near = (geometry.pursuer_evader <= related_distance) & evader_active[:, None, :]
-    return near.any(axis=-1).astype(np.float64)
+def pursuit_status(geometry: Geometry, related_distance: float) -> np.ndarray:
+    """[B, N] bool: the pursuer's nearest evader is within `related_distance` m. As in the
+    published simulator, the nearest of *every* evader, encircled ones included."""
+    return (geometry.pursuer_evader <= related_distance).any(axis=-1)
 
 
 @lru_cache(maxsize=64)
@@ -105,7 +102,9 @@ def pursuer_observations(
     """Observations of every pursuer of every environment: leading shape [B, N].
 
     Rows of collided pursuers are computed like the others and carry no meaning.
-    Collided pursuers and encircled evaders are perceived by nobody.
+    Teammates are the perceived pursuers of `state.pursuer_perceived` (a pursuer that
+    collided in the last step still shows, world.md section 6); encircled evaders are
+    perceived by nobody. Pursuit status is `state.pursuer_pursuing`.
 
     The three groups share one pass: every slot (teammates, then evaders, then
     obstacles; S = 5 + E + 5) gets the same features [px, py, vx, vy, d, bearing,
@@ -117,7 +116,7 @@ def pursuer_observations(
     distance = geometry.distance[:, :num_pursuers]  # [B, N, T + 1] m
     to_ego = np.exp(-1j * state.pursuer_theta)  # [B, N]: rotation by -theta
     pursuer_vel = as_complex(state.pursuer_vel)
-    status = pursuit_status(geometry, state.evader_active, params.related_distance)
+    status = state.pursuer_pursuing.astype(np.float64)
 
     # ego: own velocity in own frame, nearest obstacle distance (capped at R), status.
     ego_vel = pursuer_vel * to_ego
@@ -132,7 +131,7 @@ def pursuer_observations(
     # Candidates: perceived active teammates other than oneself, active evaders at
     # any distance, perceived obstacles.
     limit = per_entity(
-        np.where(state.pursuer_active, params.perception_radius + params.robot_radius, -1.0),
+        np.where(state.pursuer_perceived, params.perception_radius + params.robot_radius, -1.0),
         np.where(state.evader_active, np.inf, -1.0),
         params.perception_radius + state.obstacle_r,
         blank=-1.0,

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.episode_log import STATE_FIELDS, EpisodeLogReader, LoggedStep
+from terl_rt.episode_log import STATE_FIELDS, EpisodeLogError, EpisodeLogReader, LoggedStep
 from terl_rt.simulator import Simulator
+from terl_rt.world import WORLD_VERSION
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,12 @@ def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
     """Re-simulate episode `episode` (file order) of the log at `path` and compare every
     recorded state with the simulator's, bit for bit; the report names the first mismatch."""
     reader = EpisodeLogReader(path)
+    if reader.world_version != WORLD_VERSION:
+        raise EpisodeLogError(
+            f"{path}: recorded by a simulator of world version {reader.world_version}; this terl-rt simulates "
+            f"world version {WORLD_VERSION}, so its episodes cannot be re-simulated bit for bit "
+            f"(evaluate again to log them in this version)"
+        )
     entry = reader.episode(episode)
     simulator = Simulator(entry.scenario, seed=entry.seed)
     simulator.reset()

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from terl_rt.params import WorldParams
+from terl_rt.reward import REWARD_VARIANTS
 
 
 class ScenarioError(ValueError):
@@ -72,6 +73,9 @@ class Scenario:
     """m: pursuers start more than this from every evader."""
     clear_r: float = 15.0
     """m: start clearance between robots of a kind, and from cores and obstacles."""
+    reward: str = "paper"
+    """reward variant (world.md section 9): "paper" (the paper's formulas) or "published"
+    (what the published trainer optimised). Training only; evaluation metrics ignore it."""
     initial_state: InitialState | None = None
     """explicit initial states (then the counts above are their lengths)."""
     params: WorldParams = field(default_factory=WorldParams)
@@ -129,6 +133,7 @@ class Scenario:
             "max_steps": self.max_steps,
             "min_pursuer_evader_init_dis": self.min_pursuer_evader_init_dis,
             "clear_r": self.clear_r,
+            "reward": self.reward,
         }
         if self.initial_state is not None:
             out["initial_state"] = self.initial_state.to_dict()
@@ -179,6 +184,8 @@ def _validate(s: Scenario) -> None:
         value = getattr(s, name)
         if not _is_number(value) or not math.isfinite(value) or value < 0:
             raise ScenarioError(f"{name}: must be a finite number >= 0, got {value!r}")
+    if s.reward not in REWARD_VARIANTS:
+        raise ScenarioError(f"reward: must be one of {', '.join(map(repr, REWARD_VARIANTS))}, got {s.reward!r}")
     if not isinstance(s.params, WorldParams):
         raise ScenarioError("params: must be a WorldParams")
     for name in WorldParams.field_names():

@@ -48,6 +48,28 @@ class WorldState:
     """[B, V] bool: rotation direction."""
     steps: np.ndarray
     """[B] int64: decision steps taken in the episode."""
+    pursuer_perceived: np.ndarray | None = None
+    """[B, N] bool: pursuers the others perceive and count: those active at the start of
+    the last step. A pursuer that collided in step t is still perceived in everything
+    step t computes after the move, and in the evaders' decision for step t + 1
+    (world.md section 6). Default: a copy of pursuer_active."""
+    pursuer_pursuing: np.ndarray | None = None
+    """[B, N] bool: pursuit status, some evader (encircled ones included, as in the
+    published simulator) within related_distance after the last move; false after
+    reset (the published pursuers start with it unset). Default: all false."""
+    pursuer_last_seen: np.ndarray | None = None
+    """[B, N, N] bool: [b, i, j] when pursuer i perceived pursuer j in the last step i
+    was active in (world.md section 7: a collided pursuer keeps testing encirclements
+    with these teammates). Default: all false."""
+
+    def __post_init__(self) -> None:
+        num_envs, num_pursuers = self.pursuer_active.shape
+        if self.pursuer_perceived is None:
+            self.pursuer_perceived = self.pursuer_active.copy()
+        if self.pursuer_pursuing is None:
+            self.pursuer_pursuing = np.zeros((num_envs, num_pursuers), bool)
+        if self.pursuer_last_seen is None:
+            self.pursuer_last_seen = np.zeros((num_envs, num_pursuers, num_pursuers), bool)
 
     def copy(self) -> WorldState:
         return WorldState(**{f.name: getattr(self, f.name).copy() for f in dataclasses.fields(self)})

@@ -12,16 +12,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.dynamics import as_complex, as_pairs, integrate, signed_circulation, vortex_current
-from terl_rt.encirclement import collisions, encircle
+from terl_rt.dynamics import as_pairs, integrate, signed_circulation
+from terl_rt.encirclement import collisions, encircle, remember_perceived
 from terl_rt.evader import EvaderPolicy, PublishedAPFEvader
 from terl_rt.geometry import Geometry
 from terl_rt.metrics import EpisodeMetrics, episode_metrics
-from terl_rt.observation import Observation, pursuer_observations
+from terl_rt.observation import Observation, pursuer_observations, pursuit_status
 from terl_rt.reset import Placement, place
-from terl_rt.reward import reward_terms
+from terl_rt.reward import first_perceived_obstacle_distance, paper_reward_terms, published_reward_terms
 from terl_rt.scenario import Scenario
 from terl_rt.state import WorldState
+
+
+WORLD_VERSION = "2"
+"""Version of the world's rules, recorded in episode logs: a log of another version is not
+re-simulated (its episodes would differ). 1: until 2026-11-23. 2: the published world
+exactly: steer-only velocity at reset, a collided pursuer still counts in its step and
+keeps testing encirclements, pursuit status as published (world.md sections 2, 5-7)."""
 
 
 @dataclass(frozen=True)
@@ -51,23 +58,28 @@ class StepResult:
 
 
 def _initial_state(scenario: Scenario, placements: list[Placement]) -> WorldState:
-    """Stack per-environment placements into a state; velocities are set by the caller."""
+    """Stack per-environment placements into a state.
+
+    A robot's velocity at reset is its steer velocity alone, s (cos theta, sin theta):
+    the published simulator computes it before the vortex cores exist (world.md section 2).
+    """
     def stack(group: str) -> np.ndarray:
         return np.stack([getattr(pl, group) for pl in placements])
 
     pursuers, evaders = stack("pursuers"), stack("evaders")
     obstacles, vortices = stack("obstacles"), stack("vortices")
     num_envs = len(placements)
+    pursuer_theta, evader_theta = np.mod(pursuers[..., 2], 2 * np.pi), np.mod(evaders[..., 2], 2 * np.pi)
     return WorldState(
         pursuer_xy=pursuers[..., :2].copy(),
-        pursuer_theta=np.mod(pursuers[..., 2], 2 * np.pi),
+        pursuer_theta=pursuer_theta,
         pursuer_speed=pursuers[..., 3].copy(),
-        pursuer_vel=np.zeros(pursuers[..., :2].shape),
+        pursuer_vel=as_pairs(pursuers[..., 3] * np.exp(1j * pursuer_theta)),
         pursuer_active=np.ones(pursuers.shape[:2], bool),
         evader_xy=evaders[..., :2].copy(),
-        evader_theta=np.mod(evaders[..., 2], 2 * np.pi),
+        evader_theta=evader_theta,
         evader_speed=evaders[..., 3].copy(),
-        evader_vel=np.zeros(evaders[..., :2].shape),
+        evader_vel=as_pairs(evaders[..., 3] * np.exp(1j * evader_theta)),
         evader_active=np.ones(evaders.shape[:2], bool),
         obstacle_xy=obstacles[..., :2].copy(),
         obstacle_r=obstacles[..., 2].copy(),
@@ -76,13 +88,6 @@ def _initial_state(scenario: Scenario, placements: list[Placement]) -> WorldStat
         vortex_clockwise=vortices[..., 3] > 0.5,
         steps=np.zeros(num_envs, np.int64),
     )
-
-
-def _steer_velocity(xy: np.ndarray, theta: np.ndarray, speed: np.ndarray, state: WorldState, core_radius: float) -> np.ndarray:
-    """Ground velocity at rest of the world: steer s (cos, sin) plus the current, [B, R, 2] m/s."""
-    circulation = signed_circulation(state.vortex_gamma, state.vortex_clockwise)
-    current = vortex_current(as_complex(xy), as_complex(state.vortex_xy), circulation, core_radius)
-    return as_pairs(speed * np.exp(1j * theta) + current)
 
 
 class World:
@@ -142,12 +147,6 @@ class World:
         ]
         filler = next(pl for pl in placements if pl is not None)
         fresh = _initial_state(self.scenario, [pl if pl is not None else filler for pl in placements])
-        xy = np.concatenate([fresh.pursuer_xy, fresh.evader_xy], 1)
-        theta = np.concatenate([fresh.pursuer_theta, fresh.evader_theta], 1)
-        speed = np.concatenate([fresh.pursuer_speed, fresh.evader_speed], 1)
-        velocity = _steer_velocity(xy, theta, speed, fresh, self.params.vortex_core_radius)
-        n = self.scenario.pursuers
-        fresh.pursuer_vel, fresh.evader_vel = velocity[:, :n].copy(), velocity[:, n:].copy()
         if self.state is None:
             self.state = fresh
         else:
@@ -173,6 +172,9 @@ class World:
         actions = _check_actions(pursuer_actions, state.pursuer_active)
         acted = state.pursuer_active.copy()
         evader_was_active = state.evader_active.copy()
+        obstacle_before = (
+            first_perceived_obstacle_distance(geometry, state.obstacle_r, p) if scenario.reward == "published" else None
+        )
 
         # Evaders decide from the world as it is (geometry cached from the last step).
         evader_actions = np.asarray(self.evader_policy.act(state, geometry, p, scenario.arena), np.int64)
@@ -197,15 +199,27 @@ class World:
         state.pursuer_speed, state.evader_speed = speed[:, :n], speed[:, n:]
         state.pursuer_vel, state.evader_vel = velocity[:, :n], velocity[:, n:]
         self.geometry = geometry = Geometry.of(state)
+        state.pursuer_pursuing = pursuit_status(geometry, p.related_distance)
 
-        # Collisions, then the encirclement test among the pursuers left.
+        # Collisions. A pursuer that collides in this step still counts and is perceived
+        # in everything this step computes from here on (world.md section 6).
         collided = collisions(state, geometry, p)
         state.pursuer_active = acted & ~collided
-        ring = encircle(state, geometry, p)
-        terms = reward_terms(
-            state.pursuer_xy, acted, state.pursuer_active, collided, evader_was_active,
-            state.obstacle_r, geometry, ring, p, scenario.arena,
-        )
+        state.pursuer_perceived = acted
+
+        # The encirclement test: pursuers present in this step test with whom they perceive
+        # now; those that collided earlier with whom they perceived last (section 7).
+        remember_perceived(state, geometry, p, acted)
+        ring = encircle(state, geometry, p, acted)
+        if scenario.reward == "published":
+            terms = published_reward_terms(
+                state.pursuer_xy, acted, collided, obstacle_before, geometry, ring, p, scenario.arena,
+            )
+        else:
+            terms = paper_reward_terms(
+                state.pursuer_xy, acted, state.pursuer_active, collided, evader_was_active,
+                state.obstacle_r, geometry, ring, p, scenario.arena,
+            )
         state.evader_active = evader_was_active & ~ring.evader_captured
         state.steps += 1
 

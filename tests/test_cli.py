@@ -135,6 +135,14 @@ def test_replay_verify_passes_on_a_real_log(log):
     assert result.stdout.count("bit-identical") == 2
 
 
+def test_replay_verify_of_a_log_of_another_world_version_is_one_error_line():
+    old = Path(__file__).parent / "data" / "world-v1.mcap"
+    result = invoke("replay", old, "--verify")
+    assert result.exit_code == 2
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith("Error: ")
+    assert "world version 1; this terl-rt simulates world version 2" in result.stderr
+
+
 def test_replay_verify_json(log):
     out = json.loads(invoke("replay", log, "--verify", "--episode", "0", "--json").stdout)
     assert out["ok"] and out["episodes"][0]["steps_checked"] == 6

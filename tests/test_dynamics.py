@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from sim_helpers import far_row, initial_scenario
+from sim_helpers import PURSUER_IDLE, far_row, initial_scenario
 
 from terl_rt.actions import EVADER_ACTIONS, PURSUER_ACTIONS
 from terl_rt.dynamics import integrate, signed_circulation
@@ -275,24 +275,26 @@ def test_current_drifts_a_robot_at_rest_over_a_step():
     assert (vx, vy) == pytest.approx((0.0, -0.02), abs=1e-5)  # the direction turns by ~0.009/50 rad
 
 
-def test_reset_velocity_is_steer_plus_current():
-    # Pursuer 0 at (50, 50), heading pi/2, speed 1: steer (0, 1). Core at (52, 50), Gamma 2pi, clockwise:
-    # u = (1, 0), Rot u = (0, 1), speed 2pi / (2pi * 2) = 0.5 -> current (0, 0.5). Velocity (0, 1.5).
+def test_reset_velocity_is_the_steer_velocity_without_the_current():
+    # world.md section 2: the published simulator computes the reset velocity before the cores exist.
+    # Pursuer 0 at (50, 50), heading pi/2, speed 1: steer (0, 1). A core 2 m away at (52, 50), Gamma 2pi,
+    # clockwise, would add (0, 0.5) (u = (1, 0), Rot u = (0, 1), speed 2pi / (2pi * 2)): it is left out.
     scenario = initial_scenario(
         pursuers=[[50.0, 50.0, math.pi / 2, 1.0], [10.0, 100.0, 0.0, 2.0], [100.0, 10.0, math.pi, 0.0]],
         evaders=[[80.0, 80.0, 0.0, 3.0]],
         vortices=[[52.0, 50.0, 2 * math.pi, 1.0]],
     )
     world = World(scenario)
-    world.reset()
+    obs = world.reset()
     vel = world.state.pursuer_vel[0]
-    assert vel[0] == pytest.approx([0.0, 1.5], abs=1e-12)
-    # far from the core the current is tiny but still added: pursuer 1 at d = sqrt(42^2 + 50^2)
-    dx, dy = 52.0 - 10.0, 50.0 - 100.0
-    d = math.hypot(dx, dy)
-    expected = np.array([2.0, 0.0]) + (1.0 / d) * np.array([-dy / d, dx / d])
-    assert vel[1] == pytest.approx(expected, abs=1e-12)
-    assert world.state.evader_vel[0, 0, 0] == pytest.approx(3.0, abs=0.05)
+    assert vel[0] == pytest.approx([0.0, 1.0], abs=1e-12)
+    assert vel[1] == pytest.approx([2.0, 0.0], abs=1e-12)
+    assert world.state.evader_vel[0, 0] == pytest.approx([3.0, 0.0], abs=1e-12)
+    # the first observation sees it: ego velocity in the ego frame is (s, 0)
+    assert obs.ego[0, 0, :2] == pytest.approx([1.0, 0.0], abs=1e-6)
+    # the first move does feel the current: after one step pursuer 0 moved with it
+    world.step(np.array([[PURSUER_IDLE] * 3]))
+    assert world.state.pursuer_vel[0, 0, 1] > 1.0
 
 
 def test_evader_uses_its_own_top_speed_and_drag():

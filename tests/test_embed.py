@@ -77,13 +77,15 @@ def world_rows(state: dict, pursuer: int) -> dict:
         "teammates": np.column_stack([state["pursuer_xy"][others], state["pursuer_vel"][others]]),
         "evaders": np.column_stack([state["evader_xy"][free], state["evader_vel"][free]]),
         "obstacles": np.column_stack([state["obstacle_xy"], state["obstacle_r"]]),
+        "encircled": state["evader_xy"][~free],
     }
 
 
 @pytest.mark.parametrize("scenario, steps", [(Scenario.preset("small-15"), 7), (capture_scenario(), 2)])
 def test_observe_equals_the_simulators_observation_row(scenario, steps):
     # After capture_scenario's first step one evader is encircled and two pursuers collided:
-    # the caller leaves them out, as the simulator does.
+    # the caller leaves them out, as the simulator does, and passes the encircled evader
+    # apart (it still sets the pursuit status).
     simulator = Simulator(scenario, seed=1)
     observation = simulator.reset()
     rng = np.random.default_rng(0)

@@ -18,7 +18,7 @@ from sim_helpers import (
     stack_states,
 )
 
-from terl_rt.encirclement import collisions, encircle
+from terl_rt.encirclement import collisions, encircle, remember_perceived
 from terl_rt.evader import ConstantEvader
 from terl_rt.params import WorldParams
 from terl_rt.world import World
@@ -32,7 +32,10 @@ def ring_around(bearings_deg, radius: float = 6.0, **kwargs):
 
 
 def run_encircle(state, params=DEFAULT):
-    return encircle(state, geometry_of(state), params)
+    """The world's test with every active pursuer present (nobody collides in this step)."""
+    geometry = geometry_of(state)
+    remember_perceived(state, geometry, params, state.pursuer_active)
+    return encircle(state, geometry, params, state.pursuer_active)
 
 
 def run_collisions(state):
@@ -298,23 +301,24 @@ def test_captured_evader_no_longer_collides():
     assert world.state.pursuer_active[0, 3]
 
 
-def test_pursuer_that_collides_in_the_step_cannot_help_encircle():
-    # Even ring p0/p1/p2 (6 m); p3 sits 1 m from p2, so p2 and p3 collide in this step and the
-    # encirclement test (run after collisions) leaves p0 and p1 with one helper each.
+def test_pursuer_that_collides_in_the_step_still_helps_encircle():
+    # Even ring p0/p1/p2 (6 m); p3 sits 2.1 m beyond p2, 8.1 m from the evader (no helper), so
+    # p2 and p3 collide in this step. p2 still counts in this step's test (world.md section 6).
     pursuers = ring(EVADER[:2], 6.0, [0, 120, 240])
-    pursuers += [[pursuers[2][0], pursuers[2][1] - 1.0, 0.0, 0.0], far_row(0), far_row(1)]
-    scenario = initial_scenario(pursuers=pursuers, evaders=[EVADER])
+    pursuers += ring(EVADER[:2], 8.1, [240]) + [far_row(0), far_row(1)]
+    scenario = initial_scenario(pursuers=pursuers, evaders=[EVADER, [100.0, 100.0, 0.0, 0.0]], evader_slots=4)
     world = World(scenario, evader_policy=ConstantEvader(7))
     world.reset()
     _, result = world.step(np.full((1, 6), PURSUER_IDLE))
     assert result.collided[0].tolist() == [False, False, True, True, False, False]
-    assert not result.captured.any()
-    assert world.state.evader_active[0, 0]
+    assert result.captured[0].tolist() == [True, False]
+    assert result.pursuer_target[0].tolist() == [0, 0, 0, -1, -1, -1]
 
 
 # ---------------------------------------------------------------- against a plain loop
 def reference_encircle(state, params):
-    """(captured [B, M], target [B, N], ring size [B, N], gap std [B, N]) straight from section 7."""
+    """(captured [B, M], target [B, N], ring size [B, N], gap std [B, N]) straight from section 7,
+    every active pursuer present; collided ones test with state.pursuer_last_seen."""
     num_envs, n = state.pursuer_active.shape
     m = state.evader_active.shape[1]
     captured = np.zeros((num_envs, m), bool)
@@ -322,18 +326,18 @@ def reference_encircle(state, params):
     size = np.zeros((num_envs, n), int)
     std = np.zeros((num_envs, n))
     reach = params.perception_radius + params.robot_radius
+    last_seen = state.pursuer_last_seen.copy()
     for b in range(num_envs):
         pxy, exy = state.pursuer_xy[b], state.evader_xy[b]
         for p in range(n):
-            if not state.pursuer_active[b, p]:
-                continue
             for j in range(m):
                 if not state.evader_active[b, j] or np.hypot(*(pxy[p] - exy[j])) > params.d_encircle:
                     continue
+                # an active pursuer perceives now; a collided one what it perceived last
                 helpers = [
                     q for q in range(n)
                     if q != p and state.pursuer_active[b, q]
-                    and np.hypot(*(pxy[q] - pxy[p])) <= reach
+                    and (np.hypot(*(pxy[q] - pxy[p])) <= reach if state.pursuer_active[b, p] else last_seen[b, p, q])
                     and np.hypot(*(pxy[q] - exy[j])) < params.d_encircle
                 ]
                 if len(helpers) < 2:
@@ -362,9 +366,10 @@ def test_encirclement_matches_plain_loop_on_random_clustered_worlds():
             pursuer_active=rng.random(n) < 0.9, evader_active=rng.random(m) < 0.9,
         ))
     state = stack_states(states)
+    state.pursuer_last_seen = rng.random((num_envs, n, n)) < 0.5  # collided pursuers' last perception
 
-    got = run_encircle(state)
     captured, target, size, std = reference_encircle(state, DEFAULT)
+    got = run_encircle(state)
     assert captured.sum() >= 8 and (target >= 0).sum() >= 25  # the worlds do exercise captures
     np.testing.assert_array_equal(got.evader_captured, captured)
     np.testing.assert_array_equal(got.pursuer_target, target)

@@ -20,7 +20,7 @@ from sim_helpers import (
 )
 
 from terl_rt.evader import ConstantEvader
-from terl_rt.observation import ENTITY_TYPES, pursuer_observations
+from terl_rt.observation import ENTITY_TYPES, pursuer_observations, pursuit_status
 from terl_rt.scenario import Scenario
 from terl_rt.simulator import Simulator
 from terl_rt.world import World
@@ -33,7 +33,10 @@ OBS_R, OBS_D, OBS_BEARING = 2, 3, 4
 
 
 def observe(state, evader_slots: int = 8, params=DEFAULT):
-    return pursuer_observations(state, geometry_of(state), params, evader_slots)
+    """Observations of `state` as the world returns them after a move (pursuit status refreshed)."""
+    geometry = geometry_of(state)
+    state.pursuer_pursuing = pursuit_status(geometry, params.related_distance)
+    return pursuer_observations(state, geometry, params, evader_slots)
 
 
 def lonely_evader():
@@ -272,10 +275,11 @@ def test_pursuit_status_is_zero_beyond_related_distance():
     assert obs.ego[0, 0, 3] == 0.0
 
 
-def test_pursuit_status_ignores_encircled_evaders():
+def test_pursuit_status_counts_encircled_evaders_like_the_published_simulator():
+    # its update_pursuing_status takes the nearest of every evader, encircled ones included
     state = make_state([[0.0, 0.0, 0.0, 0.0]], [[5.0, 0.0, 0.0, 0.0], [50.0, 0.0, 0.0, 0.0]],
                        evader_active=[False, True])
-    assert observe(state).ego[0, 0, 3] == 0.0
+    assert observe(state).ego[0, 0, 3] == 1.0
 
 
 def test_teammate_token_carries_the_teammates_pursuit_status():
@@ -287,15 +291,28 @@ def test_teammate_token_carries_the_teammates_pursuit_status():
     assert obs.ego[0, 1, 3] == 1.0
 
 
-def test_pursuit_status_is_refreshed_after_the_evaders_move():
-    # The evader starts 17.5 m ahead of pursuer 0 and flees at 3.5 m/s (a = 0.4 balances drag):
-    # after 0.5 s it is ~19.25 m away, beyond 18 m.
+def status_world(evader_heading: float):
+    # An evader 17.5 m ahead of pursuer 0, driving at 3.5 m/s (a = 0.4 balances drag) with the
+    # given heading: 1.75 m a step.
     scenario = initial_scenario(
         pursuers=[[50.0, 50.0, 0.0, 0.0], far_row(0), far_row(1)],
-        evaders=[[67.5, 50.0, 0.0, 3.5]],
+        evaders=[[67.5, 50.0, evader_heading, 3.5]],
     )
-    world = World(scenario, evader_policy=ConstantEvader(12))  # 12 = (a index 2, w index 2) = (0.4, 0)
-    assert world.reset().ego[0, 0, 3] == 1.0
+    return World(scenario, evader_policy=ConstantEvader(12))  # 12 = (a index 2, w index 2) = (0.4, 0)
+
+
+def test_pursuit_status_is_zero_after_reset():
+    # the published pursuers start with is_pursuing unset; it is first computed in step 1
+    assert status_world(0.0).reset().ego[0, 0, 3] == 0.0
+
+
+def test_pursuit_status_is_refreshed_after_the_evaders_move():
+    world = status_world(math.pi)  # towards the pursuer: 17.5 -> 15.75 m
+    world.reset()
+    obs, _ = world.step(np.full((1, 3), PURSUER_IDLE))
+    assert obs.ego[0, 0, 3] == 1.0
+    world = status_world(0.0)  # away: 17.5 -> 19.25 m
+    world.reset()
     obs, _ = world.step(np.full((1, 3), PURSUER_IDLE))
     assert world.state.evader_xy[0, 0, 0] > 68.0
     assert obs.ego[0, 0, 3] == 0.0
@@ -347,8 +364,8 @@ def reference_observation(state, b: int, i: int, params, evader_slots: int) -> d
         angle = math.atan2(v[1], v[0])
         return math.pi if angle == -math.pi else angle
 
-    def status(k):
-        dists = [np.hypot(*(state.pursuer_xy[b, k] - e)) for e, a in zip(state.evader_xy[b], state.evader_active[b]) if a]
+    def status(k):  # the nearest of every evader, encircled ones included
+        dists = [np.hypot(*(state.pursuer_xy[b, k] - e)) for e in state.evader_xy[b]]
         return 1.0 if dists and min(dists) <= params.related_distance else 0.0
 
     obstacle_d = [float(np.hypot(*(o - own))) for o in state.obstacle_xy[b]]

@@ -10,11 +10,12 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.episode_log import EpisodeLogWriter, policy_info
+from terl_rt.episode_log import EpisodeLogError, EpisodeLogReader, EpisodeLogWriter, policy_info
 from terl_rt.evaluate import evaluate, run_episode
 from terl_rt.policy import OnnxPolicy
 from terl_rt.replay import verify
 from terl_rt.scenario import Scenario
+from terl_rt.world import WORLD_VERSION
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +91,26 @@ def test_verify_of_a_cut_off_log_checks_what_is_there(policy, tmp_path):
     assert report.ok and not report.complete and report.steps_checked == 3
     assert "cut off" in report.format()
     writer.close()
+
+
+# ---------------------------------------------------------------- logs of another world version
+OLD_WORLD_LOG = Path(__file__).parent / "data" / "world-v1.mcap"
+"""`terl-rt eval --scenario small-11 --episodes 1 --max-steps 5 --log` by the simulator before
+world version 2 (reset velocity with the current, collided pursuers gone within their step)."""
+
+
+def test_log_records_the_world_version(policy, tmp_path):
+    path = tmp_path / "now.mcap"
+    evaluate(policy, Scenario.preset("small-11"), episodes=1, seed=0, max_steps=3, log_path=path)
+    assert EpisodeLogReader(path).world_version == WORLD_VERSION == "2"
+
+
+def test_log_of_another_world_version_still_lists():
+    reader = EpisodeLogReader(OLD_WORLD_LOG)
+    assert reader.world_version == "1"
+    assert [entry.steps for entry in reader.episodes] == [5]
+
+
+def test_verify_refuses_a_log_of_another_world_version_in_one_sentence():
+    with pytest.raises(EpisodeLogError, match="world version 1; this terl-rt simulates world version 2"):
+        verify(OLD_WORLD_LOG, 0)

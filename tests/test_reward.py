@@ -1,4 +1,4 @@
-"""Per-pursuer reward terms (world.md section 9), the paper's formulas."""
+"""Per-pursuer reward terms (world.md section 9), the `paper` variant's formulas."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from sim_helpers import DEFAULT, PURSUER_IDLE, far_row, geometry_of, initial_scenario, make_state, random_state, ring
 
-from terl_rt.encirclement import encircle
+from terl_rt.encirclement import encircle, remember_perceived
 from terl_rt.evader import ConstantEvader
-from terl_rt.reward import REWARD_TERMS, reward_terms
+from terl_rt.reward import REWARD_TERMS, paper_reward_terms
 from terl_rt.world import World
 
 ARENA = (100.0, 100.0)
@@ -24,9 +24,10 @@ def terms(state, collided=None, recipients=None) -> dict[str, np.ndarray]:
     collided = np.zeros((1, n), bool) if collided is None else np.array([collided], bool)
     recipients = state.pursuer_active | collided if recipients is None else np.array([recipients], bool)
     geometry = geometry_of(state)
-    out = reward_terms(
+    remember_perceived(state, geometry, DEFAULT, state.pursuer_active)
+    out = paper_reward_terms(
         state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
-        state.obstacle_r, geometry, encircle(state, geometry, DEFAULT), DEFAULT, ARENA,
+        state.obstacle_r, geometry, encircle(state, geometry, DEFAULT, state.pursuer_active), DEFAULT, ARENA,
     )
     return {name: out[0, :, i] for i, name in enumerate(REWARD_TERMS)}
 
@@ -268,8 +269,6 @@ def reference_terms(state, recipients, collided, ring_size, gap_std, p, arena) -
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_reward_terms_match_plain_loop_on_random_worlds(seed):
-
-
     rng = np.random.default_rng(seed)
     state = random_state(rng, num_envs=20, num_pursuers=12, num_evaders=3, num_obstacles=6, low=-3.0, high=23.0,
                          active_fraction=0.9)
@@ -277,8 +276,9 @@ def test_reward_terms_match_plain_loop_on_random_worlds(seed):
     collided = recipients & (rng.random(recipients.shape) < 0.15)
     state.pursuer_active = recipients & ~collided
     geometry = geometry_of(state)
-    ring_ = encircle(state, geometry, DEFAULT)
-    got = reward_terms(state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
+    remember_perceived(state, geometry, DEFAULT, recipients)
+    ring_ = encircle(state, geometry, DEFAULT, recipients)
+    got = paper_reward_terms(state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
                        state.obstacle_r, geometry, ring_, DEFAULT, (20.0, 20.0))
     expected = reference_terms(state, recipients, collided, ring_.ring_size, ring_.gap_std, DEFAULT, (20.0, 20.0))
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)

@@ -226,7 +226,7 @@ def test_json_file_has_the_spec_layout(tmp_path):
     scenario.to_file(path)
     data = json.loads(path.read_text())
     assert set(data) == {"name", "arena", "pursuers", "evaders", "obstacles", "vortices", "evader_slots", "max_steps",
-                         "min_pursuer_evader_init_dis", "clear_r", "initial_state", "params"}
+                         "min_pursuer_evader_init_dis", "clear_r", "reward", "initial_state", "params"}
     assert data["params"] == {"d_encircle": 9.0}  # only the non-default constants
     assert data["initial_state"]["vortices"] == [[30.0, 80.0, 3.0, True], [80.0, 30.0, 4.0, False]]
 

@@ -105,6 +105,18 @@ def test_epsilon_falls_linearly_over_the_first_quarter_then_stays():
     assert linear_schedule(0.6, 0.05, duration, 900) == pytest.approx(0.05)
 
 
+@pytest.mark.parametrize("variant", ["paper", "published"])
+def test_training_worlds_use_the_configs_reward_variant(variant):
+    config = Config(reward=variant, total_steps=700)
+    assert training_scenario(config, 0).reward == variant
+    assert training_scenario(config.replace(curriculum=False), 0).reward == variant
+
+
+def test_unknown_reward_variant_is_a_config_error():
+    with pytest.raises(ConfigError, match="reward: unknown variant 'shaped'"):
+        Config(reward="shaped")
+
+
 def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
     # Published: stages from 0, 2 M, 4 M, 5 M, 6 M of 7 M steps.
     for step in (0, 1_999_999, 2_000_000, 4_500_000, 6_999_999):

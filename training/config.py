@@ -16,6 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from terl_rt.reward import REWARD_VARIANTS
 from terl_rt.scenario import PRESETS
 
 
@@ -53,6 +54,8 @@ class Config:
     a longer run stays in the last stage after them (how a finished run is extended)."""
     scenario: str = "small-15"
     """preset trained on when curriculum is false (ignored otherwise)."""
+    reward: str = "paper"
+    """reward variant of the training worlds (world.md section 9): "paper" or "published"."""
 
     # --- learning (policy.md section 2)
     gamma: float = 0.99
@@ -193,6 +196,8 @@ def _validate(config: Config) -> None:
     models = sorted(network_classes())
     if config.model not in models:
         raise ConfigError(f"model: unknown network '{config.model}'; expected one of {models}")
+    if config.reward not in REWARD_VARIANTS:
+        raise ConfigError(f"reward: unknown variant '{config.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
     if config.scenario not in PRESETS:
         raise ConfigError(f"scenario: unknown preset '{config.scenario}'; presets are {', '.join(PRESETS)}")
     positive = (

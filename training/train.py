@@ -72,10 +72,13 @@ def curriculum_scenario(env_step: int, total_steps: int) -> Scenario:
 
 
 def training_scenario(config: Config, env_step: int) -> Scenario:
-    """The scenario trained on at `env_step`: the scaled curriculum, or the fixed preset."""
+    """The scenario trained on at `env_step`: the scaled curriculum, or the fixed preset,
+    with the config's reward variant."""
     if config.curriculum:
-        return curriculum_scenario(env_step, config.curriculum_steps or config.total_steps)
-    return Scenario.preset(config.scenario)
+        scenario = curriculum_scenario(env_step, config.curriculum_steps or config.total_steps)
+    else:
+        scenario = Scenario.preset(config.scenario)
+    return scenario.replace(reward=config.reward)
 
 
 def crossings(before: int, after: int, every: int) -> int:
@@ -508,7 +511,7 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
 
     rollout = {}
     for name in shares:
-        world = World(Scenario.preset(name), config.num_envs, seed=config.seed)
+        world = World(Scenario.preset(name).replace(reward=config.reward), config.num_envs, seed=config.seed)
         observation = world.reset()
         timed_steps, start = -3, time.perf_counter()  # three untimed warm-up batch steps
         while timed_steps <= 0 or time.perf_counter() - start < seconds:
