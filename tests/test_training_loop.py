@@ -20,7 +20,7 @@ from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import Config, ConfigError, packaged_configs
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
-from training.replay import ReplayBuffer
+from training.buffer import ReplayBuffer
 from training.train import (
     METRICS_FILE,
     build_learner,
@@ -28,9 +28,9 @@ from training.train import (
     learn,
     observation_rows,
     recent_means,
-    store,
     train,
     training_scenario,
+    TransitionStore,
 )
 
 
@@ -88,13 +88,13 @@ def test_huber_is_quadratic_inside_kappa_and_linear_outside():
 def test_quantile_target_bootstraps_the_best_mean_action_and_stops_at_done():
     # Action 1 has the larger mean (2 > 1.5) though action 0 has the larger first quantile.
     next_quantiles = torch.tensor([[[3.0, 1.0], [0.0, 3.0]]] * 2)  # [R=2, N'=2, A=2]
-    targets = quantile_td_target(torch.tensor([1.0, 1.0]), torch.tensor([0.0, 1.0]), next_quantiles, 0.5)
+    targets = quantile_td_target(torch.tensor([1.0, 1.0]), torch.tensor([0.0, 1.0]), next_quantiles, torch.tensor([0.5, 0.5]))
     assert targets.tolist() == [[1.5, 2.5], [1.0, 1.0]]
 
 
 def test_td_target_bootstraps_the_max_and_stops_at_done():
     next_q = torch.tensor([[1.0, 4.0], [1.0, 4.0]])
-    assert td_target(torch.tensor([2.0, 2.0]), torch.tensor([0.0, 1.0]), next_q, 0.5).tolist() == [4.0, 2.0]
+    assert td_target(torch.tensor([2.0, 2.0]), torch.tensor([0.0, 1.0]), next_q, torch.tensor([0.5, 0.5])).tolist() == [4.0, 2.0]
 
 
 def test_epsilon_falls_linearly_over_the_first_quarter_then_stays():
@@ -115,6 +115,16 @@ def test_training_worlds_use_the_configs_reward_variant(variant):
 def test_unknown_reward_variant_is_a_config_error():
     with pytest.raises(ConfigError, match="reward: unknown variant 'shaped'"):
         Config(reward="shaped")
+
+
+def test_curriculum_stage_shares_and_training_episode_limit_come_from_the_config():
+    config = tiny_config(total_steps=1000, curriculum_shares=(1.0, 1.0, 1.0, 1.0, 6.0), train_max_steps=500)
+    names = {step: training_scenario(config, step).name for step in (0, 99, 100, 399, 400, 999)}
+    assert names == {0: "curriculum-1", 99: "curriculum-1", 100: "curriculum-2", 399: "curriculum-4",
+                     400: "curriculum-5", 999: "curriculum-5"}
+    assert training_scenario(config, 0).max_steps == 500
+    with pytest.raises(ConfigError, match="curriculum_shares: must be 5 positive numbers"):
+        tiny_config(curriculum_shares=(1.0, 2.0))
 
 
 def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
@@ -144,7 +154,7 @@ def test_a_run_longer_than_its_curriculum_stays_in_the_last_stage():
 def test_replay_buffer_samples_compact_rows_with_the_stored_shapes():
     buffer = ReplayBuffer(100, evader_slots=8)
     rows = random_rows(10)
-    buffer.add(rows, np.arange(10) % 9, np.ones(10), random_rows(10, seed=1), np.zeros(10, bool))
+    buffer.add(rows, np.arange(10) % 9, np.ones(10), random_rows(10, seed=1), np.zeros(10, bool), np.full(10, 0.99))
     assert len(buffer) == 10
     assert buffer.actions.dtype == np.uint8 and buffer.observations["mask"].dtype == np.bool_
     batch = buffer.sample(32, np.random.default_rng(0))
@@ -160,10 +170,11 @@ def test_replay_buffer_samples_compact_rows_with_the_stored_shapes():
 def test_replay_buffer_wraps_around_overwriting_the_oldest_rows():
     buffer = ReplayBuffer(5, evader_slots=8)
     for start in (0, 3):  # rows 0..2, then 3..6: rows 5 and 6 land in slots 0 and 1
-        buffer.add(random_rows(3), np.zeros(3, int), np.arange(start, start + 3), random_rows(3), np.zeros(3, bool))
+        buffer.add(random_rows(3), np.zeros(3, int), np.arange(start, start + 3), random_rows(3), np.zeros(3, bool),
+                   np.ones(3))
     assert len(buffer) == 5 and buffer.position == 1
     assert buffer.rewards.tolist() == [5, 1, 2, 3, 4]
-    buffer.add(random_rows(7), np.zeros(7, int), np.arange(10, 17), random_rows(7), np.zeros(7, bool))
+    buffer.add(random_rows(7), np.zeros(7, int), np.arange(10, 17), random_rows(7), np.zeros(7, bool), np.ones(7))
     # Only the last 5 of 7 rows are kept, written from slot 1 on.
     assert sorted(buffer.rewards.tolist()) == [12, 13, 14, 15, 16] and buffer.position == 1
 
@@ -171,10 +182,11 @@ def test_replay_buffer_wraps_around_overwriting_the_oldest_rows():
 def test_replay_buffer_rejects_rows_of_another_layout():
     buffer = ReplayBuffer(10, evader_slots=8)
     with pytest.raises(ValueError, match="evaders must have shape"):
-        buffer.add(random_rows(2, evader_slots=14), np.zeros(2, int), np.zeros(2), random_rows(2), np.zeros(2, bool))
+        buffer.add(random_rows(2, evader_slots=14), np.zeros(2, int), np.zeros(2), random_rows(2), np.zeros(2, bool),
+                   np.ones(2))
 
 
-def test_stored_transition_is_done_when_the_pursuer_collided_or_its_episode_ended():
+def test_stored_transition_is_done_when_the_pursuer_collided_and_truncation_bootstraps():
     # Two worlds of three pursuers; pursuer (0, 2) was inactive. (0, 1) collides; world 1 is truncated.
     zeros = lambda *shape: np.zeros((2, 3) + shape, np.float32)  # noqa: E731
     observation = Observation(
@@ -191,9 +203,11 @@ def test_stored_transition_is_done_when_the_pursuer_collided_or_its_episode_ende
     )
     rows = np.flatnonzero(acted)
     buffer = ReplayBuffer(10, evader_slots=8)
-    store(buffer, rows, observation_rows(observation, rows), np.full((2, 3), 4), observation, result)
-    assert buffer.dones[:5].tolist() == [False, True, True, True, True]
+    store = TransitionStore(buffer, tiny_config(), 6)
+    store.add(rows, observation_rows(observation, rows), np.full((2, 3), 4), observation, result, np.random.default_rng(0))
+    assert buffer.dones[:5].tolist() == [False, True, False, False, False]
     assert buffer.rewards[:5].tolist() == [0, 1, 3, 4, 5]
+    assert buffer.discounts[:5].tolist() == pytest.approx([0.99] * 5)
 
 
 # ---------------------------------------------------------------- config
@@ -227,13 +241,14 @@ def test_network_overfits_a_tiny_fixed_batch():
     world = World(Scenario.preset("curriculum-3"), num_envs=4, seed=3)
     observation = world.reset()
     buffer = ReplayBuffer(1000, evader_slots=8)
+    store = TransitionStore(buffer, tiny_config(), world.num_envs * world.scenario.pursuers)
     rng = np.random.default_rng(0)
     for _ in range(5):
         rows = np.flatnonzero(world.state.pursuer_active)
         states = observation_rows(observation, rows)
         actions = rng.integers(0, 9, world.state.pursuer_active.shape)
         observation, result = world.step(actions)
-        store(buffer, rows, states, actions, observation, result)
+        store.add(rows, states, actions, observation, result, rng)
     batch = buffer.sample(32, rng)
     config = tiny_config(learning_rate=1e-3, max_grad_norm=10.0)
     torch.manual_seed(0)
@@ -251,6 +266,7 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     first = read_counters(out)
     assert first.env_step == 1600 and first.updates > 0
     assert first.stages == [f"curriculum-{k}" for k in range(1, 6)]
+    (out / "replay.npz").unlink()  # as on a fresh machine: the buffer is refilled
 
     # Extend the finished run by 800 steps: counters continue, the refill is logged,
     # and the extra steps stay in the last stage of the 1600-step curriculum.
@@ -289,7 +305,7 @@ def test_recent_means_split_the_return_by_reward_term():
 
 
 def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp_path):
-    config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0)
+    config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0, save_replay=False)
     train(config, tmp_path / "run", show_progress=False)
     resume = ["--total-steps", "1200", "--learning-rate", "5e-5", "--learning-starts", "200", "--quiet"]
     assert main(["train", "--resume", str(tmp_path / "run"), *resume]) == 0

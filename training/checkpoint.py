@@ -49,6 +49,10 @@ class Counters:
     """seconds spent training, summed over resumes."""
     stages: list[str] = field(default_factory=list)
     """scenarios trained on, in the order first met (e.g. curriculum-1, curriculum-2)."""
+    best_score: float | None = None
+    """score of the best snapshot so far (training.train.snapshot_score), None before the first."""
+    best_step: int | None = None
+    """environment step of that snapshot."""
 
 
 def network_from_config(config: Config) -> QNetwork:

@@ -17,7 +17,10 @@ from pathlib import Path
 from typing import Any
 
 from terl_rt.reward import REWARD_VARIANTS
-from terl_rt.scenario import PRESETS
+from terl_rt.scenario import CURRICULUM_STARTS, PRESETS
+
+CURRICULUM_STAGES = tuple(name for _, name in CURRICULUM_STARTS)
+"""The curriculum's stage presets, in order (world.md section 11)."""
 
 
 class ConfigError(ValueError):
@@ -54,6 +57,11 @@ class Config:
     a longer run stays in the last stage after them (how a finished run is extended)."""
     scenario: str = "small-15"
     """preset trained on when curriculum is false (ignored otherwise)."""
+    curriculum_shares: tuple[float, ...] = (2.0, 2.0, 1.0, 1.0, 1.0)
+    """share of curriculum_steps each of the five stages gets, in stage order (normalised;
+    the published 2 M / 2 M / 1 M / 1 M / 1 M of 7 M)."""
+    train_max_steps: int = 3000
+    """decision steps before a training episode is truncated (the published 3000)."""
     reward: str = "paper"
     """reward variant of the training worlds (world.md section 9): "paper" or "published"."""
 
@@ -87,6 +95,21 @@ class Config:
     """N': fractions sampled for the target quantiles (unused by dqn)."""
     kappa: float = 1.0
     """threshold of the (quantile) Huber loss, in return units."""
+    success_ends_transitions: bool = True
+    """encircling the last evader ends the surviving pursuers' transitions (no bootstrap);
+    false: they are bootstrapped, as the published trainer does. Collisions always end a
+    pursuer's transition; the step limit never does (truncation is bootstrapped)."""
+    double_dqn: bool = False
+    """double-DQN targets: the online network picks the next action, the target network
+    values it (the published trainer takes the target network's own max)."""
+    n_step: int = 1
+    """n: rewards summed over up to n steps before bootstrapping with gamma^n (fewer at the
+    end of a pursuer's episode)."""
+    store_pursuers: int = 0
+    """pursuer transitions of each world step that enter the replay buffer, a random subset
+    of the pursuers that acted (0: all of them, the published setting)."""
+    device: str = "cpu"
+    """torch device of the networks and updates ("cpu", "cuda"); rollouts stay on the CPU."""
 
     # --- evaluation, logging, checkpoints
     eval_frequency: int = 100_000
@@ -101,6 +124,17 @@ class Config:
     """environment steps between records of metrics.jsonl."""
     checkpoint_frequency: int = 100_000
     """environment steps between checkpoints (one more is written at the end)."""
+    save_replay: bool = True
+    """save the replay buffer with every checkpoint (replay.npz, beside it): a resume on the
+    same machine continues with it; without it the buffer is refilled first."""
+    snapshot_frequency: int = 0
+    """environment steps between snapshots: the online network is evaluated greedily
+    (snapshot_episodes on fixed seeds of the current stage and of snapshot_preset) and
+    kept in best/ when it scores best so far (0: no snapshots)."""
+    snapshot_episodes: int = 8
+    """episodes per scenario of a snapshot evaluation."""
+    snapshot_preset: str = "medium-48"
+    """the larger preset every snapshot is also evaluated on."""
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -123,10 +157,10 @@ class Config:
         for key, value in data.items():
             if not _has_type(value, types[key]):
                 raise ConfigError(
-                    f"{source}: '{key}' must be {types[key].__name__}, got {value!r}"
+                    f"{source}: '{key}' must be {_type_name(types[key])}, got {value!r}"
                 )
         try:
-            return Config(**{key: types[key](value) for key, value in data.items()})
+            return Config(**{key: _convert(value, types[key]) for key, value in data.items()})
         except ConfigError as error:
             raise ConfigError(f"{source}: {error}") from None
 
@@ -178,8 +212,18 @@ def packaged_configs() -> tuple[str, ...]:
     return tuple(sorted(name[: -len(".json")] for name in names if name.endswith(".json")))
 
 
-def _has_type(value: Any, expected: type) -> bool:
-    """JSON value check: bool is not an int, an int is a valid float."""
+def _type_name(expected: Any) -> str:
+    return "a list of numbers" if typing.get_origin(expected) is tuple else expected.__name__
+
+
+def _convert(value: Any, expected: Any) -> Any:
+    return tuple(float(v) for v in value) if typing.get_origin(expected) is tuple else expected(value)
+
+
+def _has_type(value: Any, expected: Any) -> bool:
+    """JSON value check: bool is not an int, an int is a valid float, a tuple is a list of numbers."""
+    if typing.get_origin(expected) is tuple:
+        return isinstance(value, (list, tuple)) and all(_has_type(v, float) for v in value)
     if expected is bool:
         return isinstance(value, bool)
     if isinstance(value, bool):
@@ -198,18 +242,29 @@ def _validate(config: Config) -> None:
         raise ConfigError(f"model: unknown network '{config.model}'; expected one of {models}")
     if config.reward not in REWARD_VARIANTS:
         raise ConfigError(f"reward: unknown variant '{config.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
+    if len(config.curriculum_shares) != len(CURRICULUM_STAGES) or not all(
+        share > 0 for share in config.curriculum_shares
+    ):
+        raise ConfigError(
+            f"curriculum_shares: must be {len(CURRICULUM_STAGES)} positive numbers, got {list(config.curriculum_shares)}"
+        )
+    if config.snapshot_preset not in PRESETS:
+        raise ConfigError(f"snapshot_preset: unknown preset '{config.snapshot_preset}'")
+    if config.device != "cpu" and not config.device.startswith("cuda"):
+        raise ConfigError(f"device: must be 'cpu' or 'cuda[:K]', got '{config.device}'")
     if config.scenario not in PRESETS:
         raise ConfigError(f"scenario: unknown preset '{config.scenario}'; presets are {', '.join(PRESETS)}")
     positive = (
         "hidden", "threads", "total_steps", "num_envs", "batch_size", "buffer_size",
         "train_frequency", "target_network_frequency", "num_quantiles",
         "num_target_quantiles", "eval_episodes", "eval_max_steps", "log_frequency",
-        "checkpoint_frequency",
+        "checkpoint_frequency", "train_max_steps", "n_step", "snapshot_episodes",
     )
     for name in positive:
         if getattr(config, name) < 1:
             raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
-    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps"):
+    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps",
+                 "store_pursuers", "snapshot_frequency"):
         if getattr(config, name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
     # A tiny probe tells transformer bodies (which record their layers) from the others.

@@ -23,27 +23,42 @@ def huber(errors: torch.Tensor, kappa: float = 1.0) -> torch.Tensor:
 
 
 def td_target(
-    rewards: torch.Tensor, dones: torch.Tensor, next_q: torch.Tensor, gamma: float
+    rewards: torch.Tensor,
+    dones: torch.Tensor,
+    next_q: torch.Tensor,
+    discounts: torch.Tensor,
+    best: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """DQN target r + gamma * (1 - done) * max_a Q_target(s', a).
+    """DQN target r + discount * (1 - done) * Q_target(s', a*), a* = argmax_a Q_target(s', a),
+    or `best` (double DQN: the online network's argmax).
 
-    rewards [R], dones [R] (1.0 = no bootstrap), next_q [R, A] -> [R].
+    rewards [R], dones [R] (1.0 = no bootstrap), next_q [R, A], discounts [R] (gamma^k),
+    best [R] int64 or None -> [R].
     """
-    return rewards + gamma * (1.0 - dones) * next_q.max(dim=1).values
+    if best is None:
+        best = next_q.argmax(dim=1)
+    chosen = next_q.gather(1, best[:, None]).squeeze(1)
+    return rewards + discounts * (1.0 - dones) * chosen
 
 
 def quantile_td_target(
-    rewards: torch.Tensor, dones: torch.Tensor, next_quantiles: torch.Tensor, gamma: float
+    rewards: torch.Tensor,
+    dones: torch.Tensor,
+    next_quantiles: torch.Tensor,
+    discounts: torch.Tensor,
+    best: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """IQN target quantiles r + gamma * (1 - done) * Z_target(s', a*), a* = argmax_a mean_tau' Z.
+    """IQN target quantiles r + discount * (1 - done) * Z_target(s', a*), a* = argmax_a mean_tau' Z_target,
+    or `best` (double DQN: the online network's argmax).
 
-    rewards [R], dones [R], next_quantiles [R, N', A] (target network at the fractions tau')
-    -> [R, N'].
+    rewards [R], dones [R], next_quantiles [R, N', A] (target network at the fractions tau'),
+    discounts [R] (gamma^k), best [R] int64 or None -> [R, N'].
     """
-    best = next_quantiles.mean(dim=1).argmax(dim=1)
+    if best is None:
+        best = next_quantiles.mean(dim=1).argmax(dim=1)
     index = best[:, None, None].expand(-1, next_quantiles.shape[1], 1)
     chosen = next_quantiles.gather(2, index).squeeze(2)
-    return rewards[:, None] + gamma * (1.0 - dones[:, None]) * chosen
+    return rewards[:, None] + discounts[:, None] * (1.0 - dones[:, None]) * chosen
 
 
 def quantile_huber_loss(

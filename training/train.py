@@ -12,6 +12,11 @@ are all in environment steps. A batch step runs one gradient update per multiple
 of `train_frequency` it crosses, which keeps the published ratio (one update of
 128 rows per 4 environment steps) for any B.
 
+Transitions: each pursuer's step goes through an n-step window (`Config.n_step`) and,
+when `Config.store_pursuers` is set, only a random subset of a world step's pursuers
+enter the buffer. A pursuer's transition is terminal when it collides, and when its
+episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
+
 metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
   episodes, updates, stage, epsilon, loss (mean since the last record), success_rate,
@@ -20,7 +25,9 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
   episodes, steps_per_second (this session),
   wall_seconds (all sessions), eval (the `evaluate` dict, or null);
 - "stage": env_step and the curriculum stage that starts there;
-- "resume": env_step and a note that the replay buffer is being refilled.
+- "resume": env_step and how the replay buffer was restored (loaded, or refilled);
+- "snapshot": env_step, the greedy evaluations of a snapshot (current stage and
+  `Config.snapshot_preset`), its score and whether it became the best (kept in best/).
 
 `train` is the loop, read top to bottom; the helpers before it do one thing each.
 `benchmark` times the loop's two halves (rollout, update) apart.
@@ -44,19 +51,19 @@ from terl_rt.actions import NUM_PURSUER_ACTIONS
 from terl_rt.evaluate import summarize
 from terl_rt.observation import Observation
 from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
+from terl_rt.scenario import Scenario
 from terl_rt.world import StepResult, World
+from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
 from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
-from training.config import Config
+from training.config import CURRICULUM_STAGES, Config
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.networks import QNetwork
-from training.replay import ReplayBatch, ReplayBuffer
 
-CURRICULUM_LENGTH = 7_000_000
-"""Environment steps of the published curriculum (world.md section 11); runs of other
-lengths scale its stage boundaries, so stages start at 0, 2/7, 4/7, 5/7, 6/7 of a run
-(of `Config.curriculum_steps` when set)."""
+REPLAY_FILE = "replay.npz"
+"""The saved replay buffer, beside the checkpoint files (Config.save_replay)."""
+BEST_FOLDER = "best"
+"""Subfolder of the run holding the best snapshot so far, as a checkpoint."""
 RECENT_EPISODES = 100
 """Finished episodes behind the success rate and mean return of the progress line and log."""
 PROGRESS_SECONDS = 1.0
@@ -66,19 +73,29 @@ METRICS_FILE = "metrics.jsonl"
 
 
 # ---------------------------------------------------------------- schedules
-def curriculum_scenario(env_step: int, total_steps: int) -> Scenario:
-    """The curriculum stage in force at `env_step` of a `total_steps` run (boundaries scaled)."""
-    return curriculum_stage(env_step * CURRICULUM_LENGTH // total_steps)
+def stage_starts(curriculum_steps: int, shares: tuple[float, ...]) -> list[int]:
+    """First environment step of each curriculum stage when `curriculum_steps` are split
+    by `shares` (one per stage, normalised): [5] ints, the first 0."""
+    bounds = np.cumsum((0.0,) + tuple(shares))[:-1] / sum(shares)
+    return [int(round(bound * curriculum_steps)) for bound in bounds]
+
+
+def curriculum_scenario(env_step: int, curriculum_steps: int, shares: tuple[float, ...] = (2, 2, 1, 1, 1)) -> Scenario:
+    """The curriculum stage in force at `env_step` when the stages share `curriculum_steps`
+    by `shares` (default: the published 2 M / 2 M / 1 M / 1 M / 1 M of 7 M)."""
+    starts = stage_starts(curriculum_steps, shares)
+    stage = max(index for index, start in enumerate(starts) if env_step >= start)
+    return Scenario.preset(CURRICULUM_STAGES[stage])
 
 
 def training_scenario(config: Config, env_step: int) -> Scenario:
-    """The scenario trained on at `env_step`: the scaled curriculum, or the fixed preset,
-    with the config's reward variant."""
+    """The scenario trained on at `env_step`: the curriculum stage, or the fixed preset,
+    with the config's reward variant and training episode limit."""
     if config.curriculum:
-        scenario = curriculum_scenario(env_step, config.curriculum_steps or config.total_steps)
+        scenario = curriculum_scenario(env_step, config.curriculum_steps or config.total_steps, config.curriculum_shares)
     else:
         scenario = Scenario.preset(config.scenario)
-    return scenario.replace(reward=config.reward)
+    return scenario.replace(reward=config.reward, max_steps=config.train_max_steps)
 
 
 def crossings(before: int, after: int, every: int) -> int:
@@ -93,9 +110,13 @@ def observation_rows(observation: Observation, rows: np.ndarray) -> dict[str, np
     return {key: arrays[key].reshape((-1,) + arrays[key].shape[2:])[rows] for key in INPUT_NAMES}
 
 
-def as_tensors(arrays: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
-    """Observation arrays as torch tensors (no copy), in the network's call order."""
-    return tuple(torch.from_numpy(arrays[key]) for key in INPUT_NAMES)
+def network_device(model: QNetwork) -> torch.device:
+    return next(model.parameters()).device
+
+
+def as_tensors(arrays: dict[str, np.ndarray], device: torch.device | str = "cpu") -> tuple[torch.Tensor, ...]:
+    """Observation arrays as torch tensors on `device` (no copy on the CPU), in the network's call order."""
+    return tuple(torch.from_numpy(arrays[key]).to(device, non_blocking=True) for key in INPUT_NAMES)
 
 
 def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray:
@@ -104,7 +125,7 @@ def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray
         return np.zeros(0, np.int64)
     model.eval()
     with torch.inference_mode():
-        return model.q_values(*as_tensors(states)).argmax(dim=1).numpy()
+        return model.q_values(*as_tensors(states, network_device(model))).argmax(dim=1).cpu().numpy()
 
 
 def act(
@@ -127,28 +148,63 @@ def act(
     return rows, states, actions.reshape(active.shape)
 
 
-def store(
-    buffer: ReplayBuffer,
-    rows: np.ndarray,
-    states: dict[str, np.ndarray],
-    actions: np.ndarray,
-    next_observation: Observation,
-    result: StepResult,
-) -> None:
-    """Add the step's transition of every pursuer that acted (rows from `act`).
+class TransitionStore:
+    """What goes from a batch step into the replay buffer: the n-step window over every
+    pursuer row (b * N + i) of the B worlds, and the optional per-step subsample."""
 
-    done = the pursuer collided, or its episode terminated or hit the step limit
-    (policy.md section 2): such transitions are not bootstrapped.
-    """
-    ended = result.terminated | result.truncated
-    dones = result.collided | ended[:, None]
-    buffer.add(
-        states,
-        actions.ravel()[rows],
-        result.reward.ravel()[rows],
-        observation_rows(next_observation, rows),
-        dones.ravel()[rows],
-    )
+    def __init__(self, buffer: ReplayBuffer, config: Config, num_rows: int) -> None:
+        self.buffer = buffer
+        self.config = config
+        self.window = NStepWindow(config.n_step, config.gamma, num_rows, buffer.shapes)
+
+    def new_worlds(self, num_rows: int) -> None:
+        """New worlds (a curriculum stage): what was pending is dropped."""
+        self.window.reset_shapes(num_rows, self.buffer.shapes)
+
+    def add(
+        self,
+        rows: np.ndarray,
+        states: dict[str, np.ndarray],
+        actions: np.ndarray,
+        next_observation: Observation,
+        result: StepResult,
+        rng: np.random.Generator,
+    ) -> int:
+        """Add the step of every pursuer that acted (rows and states from `act`, actions [B, N]);
+        returns the transitions stored.
+
+        Terminal: the pursuer collided, or its episode terminated (all evaders encircled,
+        or too few pursuers left) when Config.success_ends_transitions. Truncated
+        episodes, and terminated ones otherwise, are bootstrapped.
+        """
+        num_pursuers = result.collided.shape[1]
+        ended = (result.terminated | result.truncated)[:, None]
+        terminal = result.collided | (result.terminated[:, None] if self.config.success_ends_transitions else False)
+        stops = np.broadcast_to(ended, terminal.shape)
+        done = self.window.push(
+            rows, states, actions.ravel()[rows], result.reward.ravel()[rows],
+            observation_rows(next_observation, rows), terminal.ravel()[rows], stops.ravel()[rows],
+        )
+        keep = np.arange(len(done.actions))
+        if self.config.store_pursuers:
+            # at most store_pursuers transitions per world of this step, drawn at random
+            keep = subsample_per_group(done.rows // num_pursuers, self.config.store_pursuers, rng)
+        self.buffer.add(
+            {key: value[keep] for key, value in done.states.items()}, done.actions[keep], done.returns[keep],
+            {key: value[keep] for key, value in done.next_states.items()}, done.dones[keep], done.discounts[keep],
+        )
+        return len(keep)
+
+
+def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of at most `limit` items of each group (groups [K] ints), drawn at random, sorted."""
+    order = rng.permutation(len(groups))
+    shuffled = groups[order]
+    by_group = np.argsort(shuffled, kind="stable")
+    sorted_groups = shuffled[by_group]
+    first = np.searchsorted(sorted_groups, sorted_groups, side="left")
+    rank = np.arange(len(groups)) - first
+    return np.sort(order[by_group[rank < limit]])
 
 
 # ---------------------------------------------------------------- learning
@@ -156,32 +212,38 @@ def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Confi
     """Quantile Huber loss (IQN heads) or Huber TD loss (`dqn`) of a sampled batch, a scalar.
 
     The online network runs as it is (train mode: dropout on); the target network,
-    in eval mode, gives r + gamma * (1 - done) * max_a mean_tau' Z_target(s', a).
+    in eval mode, gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its own
+    argmax of the mean, or with `config.double_dqn` the online network's argmax.
     """
-    states, next_states = as_tensors(batch.observations), as_tensors(batch.next_observations)
-    actions = torch.from_numpy(batch.actions)
-    rewards, dones = torch.from_numpy(batch.rewards), torch.from_numpy(batch.dones)
+    device = network_device(model)
+    states, next_states = as_tensors(batch.observations, device), as_tensors(batch.next_observations, device)
+    actions = torch.from_numpy(batch.actions).to(device)
+    rewards, dones = torch.from_numpy(batch.rewards).to(device), torch.from_numpy(batch.dones).to(device)
+    discounts = torch.from_numpy(batch.discounts).to(device)
     rows = len(actions)
     if model.distributional:
-        taus = torch.rand(rows, config.num_quantiles)
+        taus = torch.rand(rows, config.num_quantiles, device=device)
         quantiles = model(*states, taus).quantiles  # [R, N, A]
         index = actions[:, None, None].expand(-1, config.num_quantiles, 1)
         taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
         with torch.no_grad():
-            next_quantiles = target(*next_states, torch.rand(rows, config.num_target_quantiles)).quantiles
-            targets = quantile_td_target(rewards, dones, next_quantiles, config.gamma)
+            next_taus = torch.rand(rows, config.num_target_quantiles, device=device)
+            next_quantiles = target(*next_states, next_taus).quantiles
+            best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if config.double_dqn else None
+            targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
         return quantile_huber_loss(taken, taus, targets, config.kappa)
     q_values = model(*states).quantiles[:, 0]  # [R, A]
     taken = q_values.gather(1, actions[:, None]).squeeze(1)
     with torch.no_grad():
-        targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], config.gamma)
+        best = model(*next_states).quantiles[:, 0].argmax(dim=1) if config.double_dqn else None
+        targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], discounts, best)
     return huber(taken - targets, config.kappa).mean()
 
 
 def build_learner(config: Config) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
     """A fresh online network, its frozen eval-mode target copy and Adam on the online weights."""
-    model = network_from_config(config)
-    target = network_from_config(config)
+    model = network_from_config(config).to(config.device)
+    target = network_from_config(config).to(config.device)
     target.load_state_dict(model.state_dict())
     target.eval().requires_grad_(False)
     return model, target, torch.optim.Adam(model.parameters(), lr=config.learning_rate)
@@ -205,16 +267,16 @@ def learn(
 
 
 # ---------------------------------------------------------------- evaluation
-def evaluate(model: QNetwork, scenario: Scenario, config: Config) -> dict[str, Any]:
+def evaluate(model: QNetwork, scenario: Scenario, config: Config, episodes: int | None = None) -> dict[str, Any]:
     """Greedy episodes of `scenario` on fixed seeds, run as one batch.
 
-    `config.eval_episodes` worlds seeded with `config.eval_seed`, truncated after
+    `episodes` (default `config.eval_episodes`) worlds seeded with `config.eval_seed`, truncated after
     `config.eval_max_steps` steps. Returns the scenario name, episodes, the fields of
     terl_rt.evaluate.Summary (success rate, travel time, collision ratio, steps) and
     the mean per-pursuer return.
     """
     scenario = scenario.replace(max_steps=config.eval_max_steps)
-    world = World(scenario, num_envs=config.eval_episodes, seed=config.eval_seed)
+    world = World(scenario, num_envs=episodes or config.eval_episodes, seed=config.eval_seed)
     observation = world.reset()
     finished = np.zeros(world.num_envs, bool)
     returns = np.zeros(world.num_envs)
@@ -237,6 +299,34 @@ def evaluate(model: QNetwork, scenario: Scenario, config: Config) -> dict[str, A
         **asdict(summarize(outcomes)),
         "mean_return": float(returns.mean()),
     }
+
+
+def snapshot_score(evaluations: list[dict[str, Any]], config: Config) -> float:
+    """How good a snapshot is, higher is better: the mean over its evaluations of
+    success rate - collision ratio - travel time / the evaluation's time limit.
+
+    Success dominates (an extra encircled episode in 8 is worth 0.125); among equally
+    successful snapshots, fewer collisions and shorter episodes win.
+    """
+    limit = config.eval_max_steps * 0.5  # s: the decision step is 0.5 s
+    return float(np.mean([
+        e["success_rate"] - e["collision_ratio_mean"] - e["travel_time_s_mean"] / limit for e in evaluations
+    ]))
+
+
+def take_snapshot(
+    model: QNetwork, scenario: Scenario, config: Config, best: float | None
+) -> tuple[dict[str, Any], bool]:
+    """Evaluate the online network on the current stage and `config.snapshot_preset`;
+    returns the "snapshot" record (without env_step) and whether it beats `best`."""
+    evaluations = [
+        evaluate(model, scenario, config, config.snapshot_episodes),
+        evaluate(model, Scenario.preset(config.snapshot_preset).replace(reward=config.reward), config,
+                 config.snapshot_episodes),
+    ]
+    score = snapshot_score(evaluations, config)
+    better = best is None or score > best
+    return {"kind": "snapshot", "score": score, "best": better, "evaluations": evaluations}, better
 
 
 # ---------------------------------------------------------------- display and log
@@ -312,11 +402,12 @@ def train(
 ) -> Counters:
     """Train `config.model` for `config.total_steps` environment steps; return the final counters.
 
-    Writes metrics.jsonl and the checkpoint files (see training.checkpoint) into
-    `out_dir`. With `resume`, weights, optimizer, counters and RNG states come from
-    that checkpoint; the replay buffer is not saved, so it is refilled for
-    `learning_starts` environment steps before updates resume (logged).
-    The caller sets torch's thread count.
+    Writes metrics.jsonl, the checkpoint files (see training.checkpoint), the replay
+    buffer (replay.npz, `config.save_replay`) and the best snapshot (best/,
+    `config.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
+    counters, RNG states and, when it was saved there, the replay buffer come from that
+    checkpoint; without a saved buffer, it is refilled for `learning_starts`
+    environment steps before updates resume (logged). The caller sets torch's thread count.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -327,31 +418,37 @@ def train(
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
 
-    # --- networks and optimiser
+    # --- networks, optimiser, replay buffer
     model, target, optimizer = build_learner(config)
     counters = Counters()
+    scenario = training_scenario(config, counters.env_step)
+    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
     learning_starts = config.learning_starts
+    progress = Progress(show_progress, counters.env_step)
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
         for group in optimizer.param_groups:  # the config rules: the saved state carries the old rate
             group["lr"] = config.learning_rate
-        learning_starts = counters.env_step + config.learning_starts
-    progress = Progress(show_progress, counters.env_step)
-    if resume is not None:
-        note = (
-            f"resumed from {resume} at environment step {counters.env_step}; the replay buffer "
-            f"is not saved and is refilled for {config.learning_starts} environment steps "
-            "before updates resume"
-        )
+        progress = Progress(show_progress, counters.env_step)
+        saved = Path(resume) / REPLAY_FILE
+        if saved.is_file():
+            buffer.load(saved)
+            note = f"resumed from {resume} at environment step {counters.env_step} with its replay buffer ({len(buffer):,} transitions)"
+        else:
+            learning_starts = counters.env_step + config.learning_starts
+            note = (
+                f"resumed from {resume} at environment step {counters.env_step}; no saved replay buffer, "
+                f"it is refilled for {config.learning_starts} environment steps before updates resume"
+            )
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
         progress.note(note)
 
-    # --- environments and replay buffer
+    # --- environments
     num_envs = config.num_envs
     scenario = training_scenario(config, counters.env_step)
     world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
     observation = world.reset()
-    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
+    transitions = TransitionStore(buffer, config, num_envs * scenario.pursuers)
     if scenario.name not in counters.stages:
         counters.stages.append(scenario.name)
     episode_returns = np.zeros(num_envs)
@@ -369,6 +466,7 @@ def train(
             scenario = stage
             world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
             observation = world.reset()
+            transitions.new_worlds(num_envs * scenario.pursuers)
             episode_returns[:] = 0.0
             episode_terms[:] = 0.0
             if scenario.name not in counters.stages:
@@ -384,7 +482,7 @@ def train(
         observation, result = world.step(actions)
 
         # --- store (the next observation is the one before any reset)
-        store(buffer, rows, states, actions, observation, result)
+        transitions.add(rows, states, actions, observation, result, rng)
 
         # --- episode bookkeeping, then restart the ended worlds
         episode_returns += result.reward.sum(axis=1) / scenario.pursuers
@@ -414,7 +512,7 @@ def train(
             if crossings(previous_step, counters.env_step, config.target_network_frequency):
                 target.load_state_dict(model.state_dict())
 
-        # --- evaluate and log
+        # --- evaluate, snapshot and log
         finished = counters.env_step >= config.total_steps
         counters.wall_seconds = wall_before + time.perf_counter() - session_start
         evaluation = None
@@ -422,6 +520,15 @@ def train(
             crossings(previous_step, counters.env_step, config.eval_frequency) or finished
         ):
             evaluation = evaluate(model, scenario, config)
+        if config.snapshot_frequency and (
+            crossings(previous_step, counters.env_step, config.snapshot_frequency) or finished
+        ):
+            record, better = take_snapshot(model, scenario, config, counters.best_score)
+            write_record(log_path, {**record, "env_step": counters.env_step})
+            if better:
+                counters.best_score, counters.best_step = record["score"], counters.env_step
+                save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
+                progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
         if evaluation or finished or crossings(previous_step, counters.env_step, config.log_frequency):
             session_seconds = time.perf_counter() - session_start
             record = {
@@ -456,8 +563,10 @@ def train(
                 f"eps {epsilon:.3f} | updates {counters.updates} | {scenario.name}"
             )
 
-        # --- checkpoint
+        # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
         if finished or crossings(previous_step, counters.env_step, config.checkpoint_frequency):
+            if config.save_replay:
+                buffer.save(out_dir / REPLAY_FILE)
             save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
 
     progress.close()
@@ -501,17 +610,16 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
 
     # Scenarios of the run with their shares of the steps.
     if config.curriculum:
-        starts = [start for start, _ in CURRICULUM_STARTS] + [CURRICULUM_LENGTH]
-        shares = {
-            name: (end - start) / CURRICULUM_LENGTH
-            for (start, name), end in zip(CURRICULUM_STARTS, starts[1:])
-        }
+        total = sum(config.curriculum_shares)
+        shares = {name: share / total for name, share in zip(CURRICULUM_STAGES, config.curriculum_shares)}
     else:
         shares = {config.scenario: 1.0}
 
     rollout = {}
     for name in shares:
-        world = World(Scenario.preset(name).replace(reward=config.reward), config.num_envs, seed=config.seed)
+        scenario = Scenario.preset(name).replace(reward=config.reward)
+        world = World(scenario, config.num_envs, seed=config.seed)
+        transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
         observation = world.reset()
         timed_steps, start = -3, time.perf_counter()  # three untimed warm-up batch steps
         while timed_steps <= 0 or time.perf_counter() - start < seconds:
@@ -519,7 +627,7 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
                 start = time.perf_counter()
             rows, states, actions = act(model, world, observation, config.start_e, rng)
             observation, result = world.step(actions)
-            store(buffer, rows, states, actions, observation, result)
+            transitions.add(rows, states, actions, observation, result, rng)
             if world.done.any():
                 observation = world.reset(world.done.copy())
             timed_steps += 1

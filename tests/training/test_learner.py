@@ -1,0 +1,165 @@
+"""The learner's options, each on a tiny case whose answer is known: n-step returns,
+double-DQN targets, a subsampled store, a restored replay buffer, the best-snapshot choice."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from training.buffer import NStepWindow, ReplayBuffer
+from training.config import Config
+from training.losses import quantile_td_target, td_target
+from training.train import BEST_FOLDER, METRICS_FILE, REPLAY_FILE, snapshot_score, subsample_per_group, train
+
+SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
+
+
+def marked(values) -> dict[str, np.ndarray]:
+    """Observation rows whose ego[0] carries a marker (the step number), to follow them through."""
+    values = np.asarray(values, np.float32)
+    rows = {key: np.zeros((len(values),) + shape, np.bool_ if key == "mask" else np.float32) for key, shape in SHAPES.items()}
+    rows["ego"][:, 0] = values
+    return rows
+
+
+def push(window, step, rewards, dones=None, stops=None, rows=(0,)):
+    """One step of `rows`, observations marked with the step number (the next ones with step + 1)."""
+    rows = np.array(rows)
+    dones = np.zeros(len(rows), bool) if dones is None else np.array(dones)
+    stops = np.zeros(len(rows), bool) if stops is None else np.array(stops)
+    return window.push(rows, marked([step] * len(rows)), np.full(len(rows), step % 9), np.array(rewards, float),
+                       marked([step + 1] * len(rows)), dones, stops)
+
+
+# ---------------------------------------------------------------- n-step returns
+def test_three_step_return_is_emitted_once_the_window_is_full():
+    # gamma 0.5, rewards 1, 2, 4: R = 1 + 0.5 * 2 + 0.25 * 4 = 3, bootstrapped from s_3 with 0.125
+    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
+    assert len(push(window, 0, [1.0]).actions) == 0
+    assert len(push(window, 1, [2.0]).actions) == 0
+    out = push(window, 2, [4.0])
+    assert out.returns.tolist() == [3.0] and out.discounts.tolist() == [0.125] and out.dones.tolist() == [False]
+    assert out.states["ego"][:, 0].tolist() == [0.0] and out.next_states["ego"][:, 0].tolist() == [3.0]
+    # the next step completes the window that started at step 1: 2 + 0.5 * 4 + 0.25 * 8 = 6
+    out = push(window, 3, [8.0])
+    assert out.returns.tolist() == [6.0] and out.states["ego"][:, 0].tolist() == [1.0]
+
+
+def test_a_terminal_step_flushes_every_pending_return_without_bootstrap():
+    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
+    push(window, 0, [1.0])
+    out = push(window, 1, [-80.0], dones=[True])
+    # pending: from step 0, 1 + 0.5 * -80 = -39 (k = 2); from step 1, -80 (k = 1); oldest first
+    assert out.returns.tolist() == [-39.0, -80.0]
+    assert out.discounts.tolist() == [0.25, 0.5] and out.dones.tolist() == [True, True]
+    assert out.states["ego"][:, 0].tolist() == [0.0, 1.0]
+    assert len(push(window, 5, [1.0]).actions) == 0  # the row starts afresh
+
+
+def test_truncation_flushes_pending_returns_bootstrapped_from_the_last_state():
+    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
+    push(window, 0, [1.0])
+    out = push(window, 1, [2.0], stops=[True])
+    assert out.returns.tolist() == [2.0, 2.0] and out.discounts.tolist() == [0.25, 0.5]
+    assert out.dones.tolist() == [False, False] and out.next_states["ego"][:, 0].tolist() == [2.0, 2.0]
+
+
+def test_one_step_window_passes_every_step_through():
+    window = NStepWindow(1, 0.99, num_rows=3, shapes=SHAPES)
+    out = push(window, 0, [1.0, 2.0], rows=(0, 2))
+    assert out.rows.tolist() == [0, 2] and out.returns.tolist() == [1.0, 2.0]
+    assert out.discounts.tolist() == pytest.approx([0.99, 0.99])
+
+
+def test_rows_that_do_not_act_keep_their_window():
+    window = NStepWindow(2, 0.5, num_rows=2, shapes=SHAPES)
+    push(window, 0, [1.0, 10.0], rows=(0, 1))
+    out = push(window, 1, [2.0], rows=(0,))  # row 1 did not act this step
+    assert out.rows.tolist() == [0] and out.returns.tolist() == [2.0]
+
+
+# ---------------------------------------------------------------- double DQN
+def test_double_dqn_target_values_the_online_choice_with_the_target_network():
+    # target Q(s') = [1, 4]; the online network prefers action 0: r + 0.5 * 1 (not 0.5 * 4)
+    next_q = torch.tensor([[1.0, 4.0]])
+    one = torch.tensor([2.0]), torch.tensor([0.0]), next_q, torch.tensor([0.5])
+    assert td_target(*one).tolist() == [4.0]
+    assert td_target(*one, best=torch.tensor([0])).tolist() == [2.5]
+    quantiles = torch.tensor([[[1.0, 4.0], [3.0, 0.0]]])  # [R=1, N'=2, A=2], means 2 and 2 -> argmax 0
+    assert quantile_td_target(torch.tensor([0.0]), torch.tensor([0.0]), quantiles, torch.tensor([1.0]),
+                              best=torch.tensor([1])).tolist() == [[4.0, 0.0]]
+
+
+# ---------------------------------------------------------------- subsampled store
+def test_subsample_keeps_at_most_the_limit_of_each_world():
+    worlds = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    kept = subsample_per_group(worlds, 2, np.random.default_rng(0))
+    assert np.bincount(worlds[kept]).tolist() == [2, 2, 2]
+    assert len(set(kept.tolist())) == len(kept)
+    draws = {tuple(subsample_per_group(worlds, 1, np.random.default_rng(seed)).tolist()) for seed in range(20)}
+    assert len(draws) > 1  # a random subset, not always the first
+
+
+# ---------------------------------------------------------------- restored buffer
+def test_saved_buffer_loads_back_oldest_first(tmp_path):
+    buffer = ReplayBuffer(4, evader_slots=8)
+    for step in range(6):  # wraps around: rows of steps 2..5 remain
+        buffer.add(marked([step]), np.array([step % 9]), np.array([float(step)]), marked([step + 1]),
+                   np.array([step == 5]), np.array([0.5]))
+    buffer.save(tmp_path / "replay.npz")
+    restored = ReplayBuffer(10, evader_slots=8)
+    restored.load(tmp_path / "replay.npz")
+    assert len(restored) == 4 and restored.rewards[:4].tolist() == [2.0, 3.0, 4.0, 5.0]
+    assert restored.dones[:4].tolist() == [False, False, False, True]
+    assert restored.observations["ego"][:4, 0].tolist() == [2.0, 3.0, 4.0, 5.0]
+    with pytest.raises(ValueError, match="saved with 8 evader slots, this buffer has 14"):
+        ReplayBuffer(10, evader_slots=14).load(tmp_path / "replay.npz")
+
+
+def tiny(**changes) -> Config:
+    return Config(
+        model="terl", hidden=16, layers=1, heads=2, total_steps=480, num_envs=8, buffer_size=20_000,
+        learning_starts=160, target_network_frequency=160, eval_frequency=0, log_frequency=160,
+        checkpoint_frequency=240, snapshot_episodes=1, eval_max_steps=20,
+    ).replace(**changes)
+
+
+def records(run) -> list[dict]:
+    return [json.loads(line) for line in (run / METRICS_FILE).read_text().splitlines()]
+
+
+def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
+    run = tmp_path / "run"
+    train(tiny(), run, show_progress=False)
+    saved = np.load(run / REPLAY_FILE)["rewards"].size
+    assert saved > 0
+    train(tiny(total_steps=640), run, resume=run, show_progress=False)
+    note = next(r["note"] for r in records(run) if r["kind"] == "resume")
+    assert f"with its replay buffer ({saved:,} transitions)" in note
+
+
+# ---------------------------------------------------------------- best snapshot
+def test_snapshot_score_ranks_success_then_collisions_and_time():
+    config = Config(eval_max_steps=1000)  # 500 s limit
+    good = {"success_rate": 1.0, "collision_ratio_mean": 0.0, "travel_time_s_mean": 50.0}
+    slow = {**good, "travel_time_s_mean": 250.0}
+    failing = {**slow, "success_rate": 0.75}
+    assert snapshot_score([good], config) == pytest.approx(0.9)
+    assert snapshot_score([good, slow], config) == pytest.approx((0.9 + 0.5) / 2)
+    assert snapshot_score([good], config) > snapshot_score([slow], config) > snapshot_score([failing], config)
+
+
+def test_best_snapshot_is_kept_and_logged(tmp_path):
+    run = tmp_path / "run"
+    counters = train(tiny(snapshot_frequency=160), run, show_progress=False)
+    snapshots = [r for r in records(run) if r["kind"] == "snapshot"]
+    assert [r["env_step"] for r in snapshots] == [160, 320, 480]
+    assert [e["scenario"] for e in snapshots[0]["evaluations"]] == ["curriculum-2", "medium-48"]  # stage 2 from 137
+    best = max(snapshots, key=lambda r: r["score"])
+    first_best = next(r for r in snapshots if r["score"] == best["score"])
+    assert counters.best_step == first_best["env_step"] and counters.best_score == pytest.approx(best["score"])
+    assert json.loads((run / BEST_FOLDER / "state.json").read_text())["counters"]["env_step"] == first_best["env_step"]
+    assert [r["best"] for r in snapshots][0] is True

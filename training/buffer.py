@@ -1,0 +1,263 @@
+"""Replay memory of per-pursuer transitions, and the n-step window that feeds it.
+
+One row is one pursuer's transition (s, a, R, s', done, discount): observations in the
+contract layout (ego [4], teammates [P, 7], evaders [E, 7], obstacles [O, 5] float32,
+mask [1 + P + E + O] bool), action uint8, R the (n-step) return float32, done bool,
+discount = gamma^k for the k steps R sums. Rows do not depend on how many pursuers a
+scenario has, so curriculum stages share one buffer. A row takes about 1 KB with E = 8
+(the observation is stored twice). The buffer saves to and loads from one .npz file
+(plain arrays, no pickles).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from terl_rt.actions import NUM_PURSUER_ACTIONS
+from terl_rt.observation import (
+    EGO_FEATURES,
+    EVADER_FEATURES,
+    OBSTACLE_FEATURES,
+    OBSTACLE_SLOTS,
+    TEAMMATE_FEATURES,
+    TEAMMATE_SLOTS,
+)
+from training.export import INPUT_NAMES
+
+
+class ReplayBatch(NamedTuple):
+    """Sampled transitions; every array has the batch as its first axis (rows R)."""
+
+    observations: dict[str, np.ndarray]
+    """ego [R, 4], teammates [R, P, 7], evaders [R, E, 7], obstacles [R, O, 5] float32, mask [R, L] bool."""
+    actions: np.ndarray
+    """[R] int64 pursuer action indices."""
+    rewards: np.ndarray
+    """[R] float32 returns of the k steps the transition spans (k = 1 without n-step)."""
+    next_observations: dict[str, np.ndarray]
+    """like `observations`, k steps later (before any reset)."""
+    dones: np.ndarray
+    """[R] float32: 1.0 where the pursuer's transition ends its episode (no bootstrap)."""
+    discounts: np.ndarray
+    """[R] float32: gamma^k, the discount of the bootstrapped value."""
+
+
+class ReplayBuffer:
+    """A ring buffer of `capacity` pursuer transitions; the oldest rows are overwritten first."""
+
+    def __init__(
+        self,
+        capacity: int,
+        evader_slots: int,
+        teammate_slots: int = TEAMMATE_SLOTS,
+        obstacle_slots: int = OBSTACLE_SLOTS,
+    ) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self.capacity = capacity
+        self.shapes = {
+            "ego": (EGO_FEATURES,),
+            "teammates": (teammate_slots, TEAMMATE_FEATURES),
+            "evaders": (evader_slots, EVADER_FEATURES),
+            "obstacles": (obstacle_slots, OBSTACLE_FEATURES),
+            "mask": (1 + teammate_slots + evader_slots + obstacle_slots,),
+        }
+        """Per-row shape of each observation array."""
+        # np.zeros maps pages lazily: memory is used as rows are written, not up front.
+        self.observations = {key: self._allocate(key) for key in INPUT_NAMES}
+        self.next_observations = {key: self._allocate(key) for key in INPUT_NAMES}
+        self.actions = np.zeros(capacity, np.uint8)
+        self.rewards = np.zeros(capacity, np.float32)
+        self.dones = np.zeros(capacity, np.bool_)
+        self.discounts = np.zeros(capacity, np.float32)
+        self.position = 0
+        """Row the next transition is written to."""
+        self.size = 0
+        """Rows holding transitions, at most `capacity`."""
+
+    def _allocate(self, key: str) -> np.ndarray:
+        dtype = np.bool_ if key == "mask" else np.float32
+        return np.zeros((self.capacity,) + self.shapes[key], dtype)
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(
+        self,
+        observations: Mapping[str, np.ndarray],
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_observations: Mapping[str, np.ndarray],
+        dones: np.ndarray,
+        discounts: np.ndarray,
+    ) -> None:
+        """Store R transitions: observation arrays [R, ...] (see `ReplayBatch`), actions [R]
+        int in [0, 9), returns [R], dones [R] bool, discounts [R]. When R exceeds the
+        capacity only the last `capacity` rows are kept."""
+        actions = np.asarray(actions)
+        rows = len(actions)
+        for name, values in (("rewards", rewards), ("dones", dones), ("discounts", discounts)):
+            if np.shape(values) != (rows,):
+                raise ValueError(f"add: {name} must have shape ({rows},), got {np.shape(values)}")
+        for group in (observations, next_observations):
+            for key in INPUT_NAMES:
+                expected = (rows,) + self.shapes[key]
+                if np.shape(group[key]) != expected:
+                    raise ValueError(f"add: {key} must have shape {expected}, got {np.shape(group[key])}")
+        if rows and (actions.min() < 0 or actions.max() >= NUM_PURSUER_ACTIONS):
+            raise ValueError(f"add: actions must lie in [0, {NUM_PURSUER_ACTIONS}), got {actions.tolist()}")
+
+        keep = slice(max(0, rows - self.capacity), rows)
+        kept = rows - keep.start
+        index = (self.position + np.arange(kept)) % self.capacity
+        for key in INPUT_NAMES:
+            self.observations[key][index] = observations[key][keep]
+            self.next_observations[key][index] = next_observations[key][keep]
+        self.actions[index] = actions[keep]
+        self.rewards[index] = np.asarray(rewards)[keep]
+        self.dones[index] = np.asarray(dones)[keep]
+        self.discounts[index] = np.asarray(discounts)[keep]
+        self.position = (self.position + kept) % self.capacity
+        self.size = min(self.size + kept, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> ReplayBatch:
+        """`batch_size` transitions drawn uniformly with replacement by `rng`."""
+        if self.size == 0:
+            raise ValueError("sample: the replay buffer is empty")
+        index = rng.integers(0, self.size, batch_size)
+        return ReplayBatch(
+            observations={key: self.observations[key][index] for key in INPUT_NAMES},
+            actions=self.actions[index].astype(np.int64),
+            rewards=self.rewards[index],
+            next_observations={key: self.next_observations[key][index] for key in INPUT_NAMES},
+            dones=self.dones[index].astype(np.float32),
+            discounts=self.discounts[index],
+        )
+
+    # --- persistence
+    def save(self, path: str | Path) -> None:
+        """Write the filled rows, oldest first, to `path` (.npz, through a temporary name)."""
+        order = (self.position - self.size + np.arange(self.size)) % self.capacity
+        arrays = {"evader_slots": np.array(self.shapes["evaders"][0])}
+        for key in INPUT_NAMES:
+            arrays[f"obs_{key}"] = self.observations[key][order]
+            arrays[f"next_{key}"] = self.next_observations[key][order]
+        for name in ("actions", "rewards", "dones", "discounts"):
+            arrays[name] = getattr(self, name)[order]
+        path = Path(path)
+        temporary = path.with_name(path.name + ".tmp.npz")
+        np.savez(temporary, **arrays)
+        os.replace(temporary, path)
+
+    def load(self, path: str | Path) -> None:
+        """Replace the contents with the rows saved at `path` (the newest `capacity` of them).
+
+        Raises ValueError when the file's layout does not match this buffer's."""
+        with np.load(path, allow_pickle=False) as data:
+            slots = int(data["evader_slots"])
+            if slots != self.shapes["evaders"][0]:
+                raise ValueError(f"{path}: saved with {slots} evader slots, this buffer has {self.shapes['evaders'][0]}")
+            self.position = self.size = 0
+            self.add(
+                {key: data[f"obs_{key}"] for key in INPUT_NAMES}, data["actions"], data["rewards"],
+                {key: data[f"next_{key}"] for key in INPUT_NAMES}, data["dones"], data["discounts"],
+            )
+
+
+class Completed(NamedTuple):
+    """Transitions completed by one step of an `NStepWindow`: K of them."""
+
+    rows: np.ndarray
+    """[K] int: the window row (pursuer b * N + i) each came from."""
+    states: dict[str, np.ndarray]
+    actions: np.ndarray
+    returns: np.ndarray
+    """[K] float32: the k-step returns."""
+    next_states: dict[str, np.ndarray]
+    dones: np.ndarray
+    discounts: np.ndarray
+    """[K] float32: gamma^k."""
+
+
+class NStepWindow:
+    """Turns per-step transitions of fixed rows (pursuer b * N + i of B worlds) into
+    n-step transitions: R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}, bootstrapped
+    from s_{t+k} with gamma^k, k = n, or fewer where the pursuer's transition ends (done)
+    or its episode stops (truncation or reset: bootstrapped, or done if it is terminal).
+
+    With n = 1 every step comes out as it goes in, with discount gamma.
+    """
+
+    def __init__(self, n: int, gamma: float, num_rows: int, shapes: Mapping[str, tuple[int, ...]]) -> None:
+        self.n, self.gamma = n, gamma
+        self.num_rows = num_rows
+        self.reset_shapes(num_rows, shapes)
+
+    def reset_shapes(self, num_rows: int, shapes: Mapping[str, tuple[int, ...]]) -> None:
+        """Drop everything pending and hold `num_rows` rows of these observation shapes
+        (a new curriculum stage brings new worlds)."""
+        self.num_rows = num_rows
+        self.states = {
+            key: np.zeros((num_rows, self.n) + shape, np.bool_ if key == "mask" else np.float32)
+            for key, shape in shapes.items()
+        }
+        self.actions = np.zeros((num_rows, self.n), np.int64)
+        self.returns = np.zeros((num_rows, self.n))
+        self.age = np.zeros((num_rows, self.n), np.int64)
+        """steps summed into each pending slot; 0 = empty."""
+        self.slot = 0
+        """the slot the next step opens (the same for every row: rows step together)."""
+
+    def push(
+        self,
+        rows: np.ndarray,
+        states: Mapping[str, np.ndarray],
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_states: Mapping[str, np.ndarray],
+        dones: np.ndarray,
+        stops: np.ndarray,
+    ) -> Completed:
+        """Add one step of the rows that acted and return the transitions it completes.
+
+        rows [R] int row numbers; states / next_states [R, ...] by input name; actions,
+        rewards [R]; dones [R] bool: the transition is terminal (no bootstrap); stops [R]
+        bool: the pursuer's episode stops here anyway (truncation), everything pending is
+        bootstrapped from next_states. Returns the completed transitions, oldest first
+        within a row.
+        """
+        slot = self.slot
+        self.slot = (slot + 1) % self.n
+        pending = self.age[rows] > 0  # [R, n]
+        self.returns[rows] += np.where(pending, self.gamma ** self.age[rows] * rewards[:, None], 0.0)
+        self.age[rows] += pending
+        for key, values in states.items():
+            self.states[key][rows, slot] = values
+        self.actions[rows, slot] = actions
+        self.returns[rows, slot] = rewards
+        self.age[rows, slot] = 1
+
+        age = self.age[rows]
+        flush = (dones | stops)[:, None]
+        out = (age > 0) & ((age >= self.n) | flush)  # [R, n]
+        # oldest first: slots in the order they were opened, ending with the current one
+        order = (slot + 1 + np.arange(self.n)) % self.n
+        which_row, which_slot = np.nonzero(out[:, order])
+        which_slot = order[which_slot]
+        source = rows[which_row]
+        result = Completed(
+            source,
+            {key: values[source, which_slot] for key, values in self.states.items()},
+            self.actions[source, which_slot],
+            self.returns[source, which_slot].astype(np.float32),
+            {key: values[which_row] for key, values in next_states.items()},
+            dones[which_row],
+            (self.gamma ** self.age[source, which_slot]).astype(np.float32),
+        )
+        self.age[source, which_slot] = 0
+        return result
