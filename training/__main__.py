@@ -43,6 +43,8 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-envs", type=int, metavar="B", help="environments stepped together (default 8)")
     parser.add_argument("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)")
     parser.add_argument("--seed", type=int, metavar="S", help="random seed (default 1)")
+    parser.add_argument("--device", metavar="DEV",
+                        help="torch device of the networks and updates: cpu (default) or cuda; rollouts stay on the CPU")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,9 +93,17 @@ def resolve_config(args: argparse.Namespace) -> Config:
 
 def apply_overrides(config: Config, args: argparse.Namespace) -> Config:
     """Replace the fields given on the command line."""
-    names = ("total_steps", "curriculum_steps", "learning_rate", "learning_starts", "num_envs", "threads", "seed", "hidden", "layers", "heads")
+    names = ("total_steps", "curriculum_steps", "learning_rate", "learning_starts", "num_envs", "threads", "seed",
+             "hidden", "layers", "heads", "device")
     changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
     return config.replace(**changes)
+
+
+def set_threads(count: int) -> None:
+    """torch's intra-op threads, and denormal floats flushed to zero: on these CPUs an update
+    whose activations hold denormals runs up to 25x slower (measured: 2.9 s against 0.12 s)."""
+    torch.set_num_threads(count)
+    torch.set_flush_denormal(True)
 
 
 def command_train(args: argparse.Namespace) -> None:
@@ -115,7 +125,7 @@ def command_train(args: argparse.Namespace) -> None:
                 f"{args.out} holds a checkpoint; pass --resume {args.out} or pick another --out"
             )
         out = args.out
-    torch.set_num_threads(config.threads)
+    set_threads(config.threads)
     counters = train(config, out, resume=args.resume, show_progress=not args.quiet)
     print(
         f"{config.model}: {counters.env_step:,} environment steps, {counters.updates:,} updates, "
@@ -148,7 +158,7 @@ def command_bench(args: argparse.Namespace) -> None:
     if args.config is None and args.model is None:
         args.model = "terl"
     config = resolve_config(args)
-    torch.set_num_threads(config.threads)
+    set_threads(config.threads)
     result = benchmark(config, seconds=args.seconds)
     print(
         f"{result.model} H={result.hidden} L={result.layers} h={result.heads}, "

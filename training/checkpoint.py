@@ -56,8 +56,12 @@ class Counters:
 
 
 def network_from_config(config: Config) -> QNetwork:
-    """The network a config describes (fresh weights)."""
-    return build_network(config.model, config.hidden, config.layers, config.heads)
+    """The network a config describes (fresh weights), its dropout layers at `config.dropout`."""
+    model = build_network(config.model, config.hidden, config.layers, config.heads)
+    for module in model.modules():
+        if isinstance(module, torch.nn.Dropout):
+            module.p = config.dropout
+    return model
 
 
 def rng_states(rng: np.random.Generator) -> dict[str, Any]:
@@ -99,7 +103,7 @@ def save_checkpoint(
     folder.mkdir(parents=True, exist_ok=True)
     weights_metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
     for name, network in ((MODEL_FILE, model), (TARGET_FILE, target)):
-        state = {key: value.detach().contiguous() for key, value in network.state_dict().items()}
+        state = {key: value.detach().cpu().contiguous() for key, value in network.state_dict().items()}
         _replace_file(folder / name, lambda path: save_file(state, str(path), metadata=weights_metadata))
     _replace_file(folder / OPTIMIZER_FILE, lambda path: torch.save(optimizer.state_dict(), path))
     _replace_file(folder / CONFIG_FILE, config.to_file)

@@ -40,6 +40,9 @@ class Config:
     """L: transformer layers (0 for bodies without a transformer)."""
     heads: int = 8
     """h: attention heads, must divide H (0 for bodies without a transformer)."""
+    dropout: float = 0.1
+    """dropout probability inside the transformer layers while learning (the published 0.1;
+    on CPUs its random numbers cost about a third of an update)."""
 
     # --- run
     seed: int = 1
@@ -276,7 +279,7 @@ def _validate(config: Config) -> None:
                 )
         if config.hidden % config.heads:
             raise ConfigError(f"heads: {config.heads} must divide hidden {config.hidden}")
-    for name in ("gamma", "start_e", "end_e", "exploration_fraction"):
+    for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout"):
         if not 0.0 <= getattr(config, name) <= 1.0:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):

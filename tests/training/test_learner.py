@@ -163,3 +163,12 @@ def test_best_snapshot_is_kept_and_logged(tmp_path):
     assert counters.best_step == first_best["env_step"] and counters.best_score == pytest.approx(best["score"])
     assert json.loads((run / BEST_FOLDER / "state.json").read_text())["counters"]["env_step"] == first_best["env_step"]
     assert [r["best"] for r in snapshots][0] is True
+
+
+def test_dropout_of_the_transformer_layers_comes_from_the_config():
+    from training.checkpoint import network_from_config
+
+    for p in (0.0, 0.1):
+        model = network_from_config(Config(hidden=16, layers=1, heads=2, dropout=p))
+        rates = {m.p for m in model.modules() if isinstance(m, torch.nn.Dropout)}
+        assert rates == {p}
