@@ -12,16 +12,16 @@ from mcap.writer import Writer
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.episode_log import (
+from terl_rt.evaluation.episodes import evaluate, run_episode
+from terl_rt.logs.episode_log import (
     TOPIC_WORLD,
     EpisodeLogError,
     EpisodeLogReader,
     EpisodeLogWriter,
     policy_info,
 )
-from terl_rt.evaluate import evaluate, run_episode
-from terl_rt.foxglove import COLORS, SCENE_UPDATE_SCHEMA
-from terl_rt.policy import OnnxPolicy
+from terl_rt.logs.foxglove import COLORS, SCENE_UPDATE_SCHEMA
+from terl_rt.policy.onnx_policy import OnnxPolicy
 
 STEPS = 6
 """Step limit of the logged episodes."""

@@ -16,8 +16,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from terl_rt.reward import REWARD_VARIANTS
-from terl_rt.scenario import PRESETS
+from terl_rt.sim.reward import REWARD_VARIANTS
+from terl_rt.sim.scenario import PRESETS
 
 
 class ConfigError(ValueError):

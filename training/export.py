@@ -21,9 +21,9 @@ import onnxruntime as ort
 import torch
 from torch import nn
 
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.scenario import PAPER_SUITE, Scenario
-from terl_rt.simulator import Simulator
+from terl_rt.sim.actions import PURSUER_ACTIONS
+from terl_rt.sim.scenario import PAPER_SUITE, Scenario
+from terl_rt.sim.simulator import Simulator
 from training.networks.encoders import QNetwork
 
 CONTRACT_VERSION = "1"

@@ -14,8 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS
-from terl_rt.observation import (
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.observation import (
     EGO_FEATURES,
     EVADER_FEATURES,
     OBSTACLE_FEATURES,

@@ -40,12 +40,12 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS
-from terl_rt.evaluate import summarize
-from terl_rt.observation import Observation
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
-from terl_rt.world import StepResult, World
+from terl_rt.evaluation.episodes import summarize
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage
+from terl_rt.sim.world import StepResult, World
 from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
 from training.config import Config
 from training.export import INPUT_NAMES

@@ -7,7 +7,6 @@ import sys
 
 import click
 
-from terl_rt.bench import SCALING_PURSUERS, bench_policy, bench_sim, scaling_scenario
 from terl_rt.cli.options import (
     json_option,
     open_policy,
@@ -16,6 +15,7 @@ from terl_rt.cli.options import (
     seed_option,
     threads_option,
 )
+from terl_rt.evaluation.speed import SCALING_PURSUERS, bench_policy, bench_sim, scaling_scenario
 
 steps_option = click.option(
     "--steps", type=click.IntRange(min=1), default=500, show_default=True, help="Timed steps."

@@ -23,8 +23,8 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.episode_log import EpisodeLogWriter, policy_info
-from terl_rt.evaluate import ScenarioResult
+from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.logs.episode_log import EpisodeLogWriter, policy_info
 
 HEADER = (
     f"{'scenario':<14}{'episodes':>9}{'success':>9}{'travel time (s)':>18}"

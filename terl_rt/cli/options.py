@@ -8,10 +8,10 @@ import sys
 import click
 
 import terl_rt
-from terl_rt.episode_log import EpisodeLogWriter
-from terl_rt.evaluate import ScenarioResult, evaluate
-from terl_rt.policy import ContractError, OnnxPolicy
-from terl_rt.scenario import PAPER_SUITE, Scenario
+from terl_rt.evaluation.episodes import ScenarioResult, evaluate
+from terl_rt.logs.episode_log import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
+from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 
 DEFAULT_POLICY = Path("exported") / "terl.onnx"
 """The default policy, relative to the repository checkout (or the working directory)."""
@@ -71,7 +71,7 @@ def evaluate_with_progress(
     log: EpisodeLogWriter | None = None,
     threads: int | None = None,
 ) -> list[ScenarioResult]:
-    """`terl_rt.evaluate.evaluate` on each scenario in turn, with a progress bar per
+    """`terl_rt.evaluation.episodes.evaluate` on each scenario in turn, with a progress bar per
     scenario on stderr; the arguments are evaluate's."""
     results = []
     for scenario in scenarios:

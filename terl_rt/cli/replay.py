@@ -7,8 +7,8 @@ import json
 import click
 
 from terl_rt.cli.options import episode_option, json_option
-from terl_rt.episode_log import EpisodeLogReader, LoggedEpisode
-from terl_rt.replay import verify
+from terl_rt.logs.episode_log import EpisodeLogReader, LoggedEpisode
+from terl_rt.logs.resimulate import verify
 
 
 def _episode_dict(entry: LoggedEpisode) -> dict:

@@ -21,8 +21,8 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.episode_log import policy_info
-from terl_rt.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+from terl_rt.evaluation.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+from terl_rt.logs.episode_log import policy_info
 
 
 def command_line(

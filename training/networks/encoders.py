@@ -15,8 +15,8 @@ from typing import Any, ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.observation import (
+from terl_rt.sim.actions import PURSUER_ACTIONS
+from terl_rt.sim.observation import (
     EGO_FEATURES,
     EVADER_FEATURES,
     OBSTACLE_FEATURES,

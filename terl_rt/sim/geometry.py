@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.dynamics import as_complex
-from terl_rt.state import WorldState
+from terl_rt.sim.dynamics import as_complex
+from terl_rt.sim.state import WorldState
 
 
 @dataclass(frozen=True)

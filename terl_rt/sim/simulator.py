@@ -6,12 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.evader import EvaderPolicy
-from terl_rt.metrics import EpisodeMetrics
-from terl_rt.observation import Observation
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import Scenario
-from terl_rt.world import StepResult, World
+from terl_rt.sim.evader import EvaderPolicy
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import StepResult, World
 
 
 @dataclass(frozen=True)
@@ -21,7 +21,7 @@ class StepInfo:
     reward: np.ndarray
     """[N] float64: each pursuer's reward (0 for pursuers inactive at the step start)."""
     reward_terms: dict[str, np.ndarray]
-    """term name (terl_rt.reward.REWARD_TERMS) -> [N] float64."""
+    """term name (terl_rt.sim.reward.REWARD_TERMS) -> [N] float64."""
     collided: np.ndarray
     """[N] bool: pursuers that collided in this step."""
     captured: np.ndarray

@@ -1,7 +1,7 @@
 """Scripted evaders (world.md section 8): the paper's artificial-potential-field evader.
 
 An evader policy maps the world to one action index per evader, [B, M] int64 into
-the evader action table (terl_rt.actions.EVADER_ACTIONS). Any object with the
+the evader action table (terl_rt.sim.actions.EVADER_ACTIONS). Any object with the
 `EvaderPolicy.act` signature can be passed to the simulator.
 """
 
@@ -12,11 +12,11 @@ from typing import Protocol
 
 import numpy as np
 
-from terl_rt.actions import EVADER_YAW_RATES
-from terl_rt.dynamics import TWO_PI, as_complex
-from terl_rt.geometry import Geometry, SlotGroup, candidate_key, entity_table, nearest_slots, per_entity, take, take_rows
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.actions import EVADER_YAW_RATES
+from terl_rt.sim.dynamics import TWO_PI, as_complex
+from terl_rt.sim.geometry import Geometry, SlotGroup, candidate_key, entity_table, nearest_slots, per_entity, take, take_rows
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.state import WorldState
 
 APF_SLOTS = 5
 """nearest obstacles, pursuers and other evaders an evader takes into account."""

@@ -11,8 +11,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.dynamics import as_complex
-from terl_rt.geometry import (
+from terl_rt.sim.dynamics import as_complex
+from terl_rt.sim.geometry import (
     Geometry,
     SlotGroup,
     bearing,
@@ -24,8 +24,8 @@ from terl_rt.geometry import (
     take,
     take_rows,
 )
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.state import WorldState
 
 EGO_FEATURES = 4
 """ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""

@@ -1,6 +1,6 @@
 """Exported ONNX policies: load one, check it against the contract, act with it.
 
-The contract (policy.md section 3) is checked in `terl_rt.contract`; this module
+The contract (policy.md section 3) is checked in `terl_rt.policy.contract`; this module
 opens the file with onnxruntime, refuses models that break the contract, checks
 observations before they reach the model, and runs every row in one call.
 """
@@ -19,8 +19,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.contract import (
+from terl_rt.policy.contract import (
     INPUTS,
     META_MODEL,
     ContractError,
@@ -28,7 +27,8 @@ from terl_rt.contract import (
     TensorInfo,
     check_model,
 )
-from terl_rt.observation import Observation
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.observation import Observation
 
 __all__ = [
     "ContractError",

@@ -13,7 +13,7 @@ Layout of a log (MCAP, one zstd chunk per step):
 
 Topics (JSON messages; log time = episode start + step * 0.5 s, in ns):
 
-- `/world`: foxglove.SceneUpdate (terl_rt.foxglove), the whole scene of the step;
+- `/world`: foxglove.SceneUpdate (terl_rt.logs.foxglove), the whole scene of the step;
 - `/state`: the full float64 world state (`Simulator.state()` less the derived
   `pursuer_collided`), floats written with Python's repr, so they read back exactly;
 - `/actions`: the [N] pursuer action indices fed to the simulator for this step
@@ -53,12 +53,12 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from terl_rt.foxglove import SCENE_UPDATE, SCENE_UPDATE_SCHEMA, scene_update
-from terl_rt.metrics import EpisodeMetrics
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import Scenario, ScenarioError
-from terl_rt.simulator import StepInfo
-from terl_rt.world import WORLD_VERSION
+from terl_rt.logs.foxglove import SCENE_UPDATE, SCENE_UPDATE_SCHEMA, scene_update
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario, ScenarioError
+from terl_rt.sim.simulator import StepInfo
+from terl_rt.sim.world import WORLD_VERSION
 
 LOG_FORMAT = "terl-rt episode log"
 LOG_VERSION = "1"
@@ -236,7 +236,7 @@ class EpisodeLogWriter:
     def __init__(self, path: str | os.PathLike, policy_info: Mapping[str, Any]):
         for key in ("name", "sha256"):
             if key not in policy_info:
-                raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.episode_log.policy_info(policy)")
+                raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.logs.episode_log.policy_info(policy)")
         self.path = Path(path)
         self._file = open(self.path, "wb")
         self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
@@ -491,7 +491,7 @@ class EpisodeLogReader:
         self.policy: dict[str, Any] = {}
         """The policy the episodes ran: name, sha256, path, metadata."""
         self.world_version = "1"
-        """terl_rt.world.WORLD_VERSION of the simulator that wrote the log (logs before versions: "1")."""
+        """terl_rt.sim.world.WORLD_VERSION of the simulator that wrote the log (logs before versions: "1")."""
         self.truncated = False
         """True when the file stops before its footer (cut off, or its writer never closed)."""
         self.problem: str | None = None

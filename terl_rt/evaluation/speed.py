@@ -8,9 +8,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
-from terl_rt.world import World
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.world import World
 
 SCALING_PURSUERS = (15, 80, 200, 400)
 """Pursuer counts of the scaling table; evaders are a quarter of that."""

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from terl_rt.encirclement import Encirclement
-from terl_rt.geometry import Geometry, not_self, not_self_columns, per_entity
-from terl_rt.params import WorldParams
+from terl_rt.sim.encirclement import Encirclement
+from terl_rt.sim.geometry import Geometry, not_self, not_self_columns, per_entity
+from terl_rt.sim.params import WorldParams
 
 REWARD_TERMS = ("time", "collision", "emergency", "guidance", "cooperation", "boundary", "completion")
 """Names of the reward terms, in the order of the last axis of the reward functions' output."""

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.state import WorldState
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ not a refusal) with a message that names the problem and its likely cause.
 `check_model` runs them all and collects a `ContractReport`.
 
 The checks read plain descriptions (`TensorInfo`, a metadata dict), so they need
-neither onnx nor an onnxruntime session; `terl_rt.policy.check_contract` builds
+neither onnx nor an onnxruntime session; `terl_rt.policy.onnx_policy.check_contract` builds
 those descriptions from a session.
 """
 
@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.observation import (
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.observation import (
     EGO_FEATURES,
     EVADER_FEATURES,
     OBSTACLE_FEATURES,

@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.dynamics import TWO_PI
-from terl_rt.geometry import Geometry, heading, not_self_columns, per_entity, perceived_pursuers
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.dynamics import TWO_PI
+from terl_rt.sim.geometry import Geometry, heading, not_self_columns, per_entity, perceived_pursuers
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.state import WorldState
 
 
 def collisions(state: WorldState, geometry: Geometry, params: WorldParams) -> np.ndarray:

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.episode_log import STATE_FIELDS, EpisodeLogError, EpisodeLogReader, LoggedStep
-from terl_rt.simulator import Simulator
-from terl_rt.world import WORLD_VERSION
+from terl_rt.logs.episode_log import STATE_FIELDS, EpisodeLogError, EpisodeLogReader, LoggedStep
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.world import WORLD_VERSION
 
 
 @dataclass(frozen=True)
