@@ -18,7 +18,8 @@ from sim_helpers import (
     stack_states,
 )
 
-from terl_rt.sim.encirclement import collisions, encircle, remember_perceived
+from terl_rt.sim.collisions import collisions
+from terl_rt.sim.encirclement import encircle, remember_perceived
 from terl_rt.sim.evader import ConstantEvader
 from terl_rt.sim.params import WorldParams
 from terl_rt.sim.world import World

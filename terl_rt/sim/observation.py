@@ -25,6 +25,7 @@ from terl_rt.sim.geometry import (
     take_rows,
 )
 from terl_rt.sim.params import WorldParams
+from terl_rt.sim.perception import perception_reach
 from terl_rt.sim.state import WorldState
 
 EGO_FEATURES = 4
@@ -131,9 +132,9 @@ def pursuer_observations(
     # Candidates: perceived active teammates other than oneself, active evaders at
     # any distance, perceived obstacles.
     limit = per_entity(
-        np.where(state.pursuer_perceived, params.perception_radius + params.robot_radius, -1.0),
+        np.where(state.pursuer_perceived, perception_reach(params.robot_radius, params), -1.0),
         np.where(state.evader_active, np.inf, -1.0),
-        params.perception_radius + state.obstacle_r,
+        perception_reach(state.obstacle_r, params),
         blank=-1.0,
     )
     key = candidate_key(distance, 0, limit)

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.sim.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.collisions import collisions
 from terl_rt.sim.dynamics import as_pairs, integrate, signed_circulation
-from terl_rt.sim.encirclement import collisions, encircle, remember_perceived
+from terl_rt.sim.encirclement import encircle, remember_perceived
 from terl_rt.sim.evader import EvaderPolicy, PublishedAPFEvader
 from terl_rt.sim.geometry import Geometry
 from terl_rt.sim.metrics import EpisodeMetrics, episode_metrics
