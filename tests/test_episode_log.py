@@ -109,6 +109,16 @@ def test_logged_states_read_back_bit_for_bit(policy, log_path):
             assert value.dtype == original.dtype and value.tobytes() == original.tobytes(), name
 
 
+def test_state_message_holds_the_public_state_and_no_bookkeeping_of_the_rules(log_path):
+    step = next(EpisodeLogReader(log_path).steps(0))
+    assert list(step.payload("/state")) == [
+        "episode",
+        "pursuer_xy", "pursuer_theta", "pursuer_speed", "pursuer_vel", "pursuer_active",
+        "evader_xy", "evader_theta", "evader_speed", "evader_vel", "evader_active",
+        "obstacle_xy", "obstacle_r", "vortex_xy", "vortex_gamma", "vortex_clockwise", "step",
+    ]
+
+
 def test_logged_step_one_holds_actions_rewards_and_events(log_path):
     step = list(EpisodeLogReader(log_path).steps(0))[1]
     assert step.pursuer_actions.shape == (7,) and step.evader_actions.shape == (2,)

@@ -14,8 +14,9 @@ Layout of a log (MCAP, one zstd chunk per step):
 Topics (JSON messages; log time = episode start + step * 0.5 s, in ns):
 
 - `/world`: foxglove.SceneUpdate (terl_rt.logs.foxglove), the whole scene of the step;
-- `/state`: the full float64 world state (`Simulator.state()` less the derived
-  `pursuer_collided`), floats written with Python's repr, so they read back exactly;
+- `/state`: the world's public state (`terl_rt.sim.state.LOGGED_FIELDS`: `Simulator.state()`
+  less the derived `pursuer_collided`), floats written with Python's repr, so they read
+  back exactly;
 - `/actions`: the [N] pursuer action indices fed to the simulator for this step
   (0 for collided pursuers), which pursuers decided, and the [M] evader actions;
 - `/target_weights`: [n, E] target weights of the n deciding pursuers (policies with
@@ -58,6 +59,7 @@ from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario, ScenarioError
 from terl_rt.sim.simulator import StepInfo
+from terl_rt.sim.state import LOGGED_FIELDS
 from terl_rt.sim.world import WORLD_VERSION
 
 LOG_FORMAT = "terl-rt episode log"
@@ -74,17 +76,6 @@ TOPIC_ACTIONS = "/actions"
 TOPIC_TARGET_WEIGHTS = "/target_weights"
 TOPIC_REWARDS = "/rewards"
 TOPIC_EVENTS = "/events"
-
-STATE_FIELDS: dict[str, type] = {
-    "pursuer_xy": float, "pursuer_theta": float, "pursuer_speed": float, "pursuer_vel": float,
-    "pursuer_active": bool,
-    "evader_xy": float, "evader_theta": float, "evader_speed": float, "evader_vel": float,
-    "evader_active": bool,
-    "obstacle_xy": float, "obstacle_r": float,
-    "vortex_xy": float, "vortex_gamma": float, "vortex_clockwise": bool,
-    "step": int,
-}
-"""/state fields (Simulator.state() keys) and their element type; *_xy and *_vel are [K, 2]."""
 
 _GAP_NS = 1_000_000_000
 """Log time left between the last step of an episode and the next episode's start."""
@@ -120,7 +111,7 @@ _SCHEMAS: dict[str, tuple[str, bytes]] = {
     TOPIC_WORLD: (SCENE_UPDATE, _dumps(SCENE_UPDATE_SCHEMA)),
     TOPIC_STATE: ("terl.State", _object_schema(
         "terl.State", "Full world state after the step (m, rad, m/s); floats are exact float64 reprs",
-        {**_HEAD, **{name: {"type": "array"} for name in STATE_FIELDS if name != "step"}},
+        {**_HEAD, **{f.key: {"type": "array"} for f in LOGGED_FIELDS if f.key not in _HEAD}},
     )),
     TOPIC_ACTIONS: ("terl.Actions", _object_schema(
         "terl.Actions", "Actions of the step: pursuer [N] as fed to the simulator, evader [M]",
@@ -219,8 +210,8 @@ def _events(record: StepRecord) -> list[dict]:
 
 def _state_payload(number: int, state: Mapping[str, np.ndarray]) -> dict:
     payload: dict[str, Any] = {"episode": number}
-    for name in STATE_FIELDS:
-        payload[name] = np.asarray(state[name]).tolist()
+    for f in LOGGED_FIELDS:
+        payload[f.key] = np.asarray(state[f.key]).tolist()
     return payload
 
 
@@ -444,11 +435,9 @@ class LoggedStep:
         payload = self.payload(TOPIC_STATE)
         out: dict[str, np.ndarray] = {}
         try:
-            for name, kind in STATE_FIELDS.items():
-                value = np.asarray(payload[name], dtype={float: np.float64, bool: np.bool_, int: np.int64}[kind])
-                if name.endswith(("_xy", "_vel")):
-                    value = value.reshape(-1, 2)
-                out[name] = value
+            for f in LOGGED_FIELDS:
+                value = np.asarray(payload[f.key], dtype=f.dtype)
+                out[f.key] = value.reshape(-1, 2) if f.pairs else value
         except (KeyError, TypeError, ValueError) as error:
             raise EpisodeLogError(
                 f"the /state message of episode {self.episode} step {self.step} is malformed ({error!r})"

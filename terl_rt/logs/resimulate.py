@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.logs.episode_log import STATE_FIELDS, EpisodeLogError, EpisodeLogReader, LoggedStep
+from terl_rt.logs.episode_log import EpisodeLogError, EpisodeLogReader, LoggedStep
 from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.state import LOGGED_FIELDS
 from terl_rt.sim.world import WORLD_VERSION
 
 
@@ -85,10 +86,10 @@ def _first_difference(recorded: np.ndarray, simulated: np.ndarray) -> str | None
 
 def _compare_state(step: LoggedStep, simulated: dict[str, np.ndarray]) -> Mismatch | None:
     recorded = step.state
-    for name in STATE_FIELDS:
-        problem = _first_difference(np.asarray(recorded[name]), np.asarray(simulated[name]))
+    for f in LOGGED_FIELDS:
+        problem = _first_difference(np.asarray(recorded[f.key]), np.asarray(simulated[f.key]))
         if problem is not None:
-            return Mismatch(step.step, name, problem)
+            return Mismatch(step.step, f.key, problem)
     return None
 
 
