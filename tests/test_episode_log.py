@@ -13,15 +13,11 @@ from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
 from terl_rt.evaluation.episodes import evaluate, run_episode
-from terl_rt.logs.episode_log import (
-    TOPIC_WORLD,
-    EpisodeLogError,
-    EpisodeLogReader,
-    EpisodeLogWriter,
-    policy_info,
-)
+from terl_rt.logs.format import TOPIC_WORLD, EpisodeLogError
 from terl_rt.logs.foxglove import COLORS, SCENE_UPDATE_SCHEMA
-from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 
 STEPS = 6
 """Step limit of the logged episodes."""

@@ -11,9 +11,11 @@ from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
 from terl_rt.evaluation.episodes import evaluate, run_episode
-from terl_rt.logs.episode_log import EpisodeLogError, EpisodeLogReader, EpisodeLogWriter, policy_info
+from terl_rt.logs.format import EpisodeLogError
+from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
-from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import WORLD_VERSION
 

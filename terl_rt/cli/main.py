@@ -13,7 +13,7 @@ from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
 from terl_rt.cli.scenarios import scenarios
-from terl_rt.logs.episode_log import EpisodeLogError
+from terl_rt.logs.format import EpisodeLogError
 from terl_rt.logs.render import RenderError
 from terl_rt.policy.contract import ContractError
 from terl_rt.sim.scenario import ScenarioError

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
 import click
 
 import terl_rt
 from terl_rt.evaluation.episodes import ScenarioResult, evaluate
-from terl_rt.logs.episode_log import EpisodeLogWriter
+from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 
@@ -47,6 +49,11 @@ def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
         if str(resolved) in str(error):
             raise
         raise ContractError(f"{resolved}: {error}") from error
+
+
+def policy_json(info: Mapping[str, Any]) -> dict[str, str]:
+    """The policy in --json output: name, sha256 and path of a `policy_info` (or of a log's policy)."""
+    return {key: info[key] for key in ("name", "sha256", "path")}
 
 
 def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: str | None) -> list[Scenario]:

@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.logs.episode_log import EpisodeLogWriter, StepRecord, policy_info
-from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
+from terl_rt.logs.format import StepRecord
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, policy_info
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.simulator import Simulator
@@ -181,7 +182,7 @@ def evaluate(
 
     max_steps overrides the scenario's step limit. workers > 1 runs episodes in that many
     spawned processes. threads: onnxruntime intra-op threads of a policy given as a path
-    and of each worker's policy (workers default to 1). log_path: an MCAP file to write every step to (see terl_rt.logs.episode_log),
+    and of each worker's policy (workers default to 1). log_path: an MCAP file to write every step to (see terl_rt.logs.format),
     or an open EpisodeLogWriter to append to (the caller closes it). Episodes are logged
     and reported to `progress` in episode order as they finish.
     """

@@ -176,7 +176,7 @@ def render_markdown(
     date: datetime,
     figure_name: str = FIGURE_NAME,
 ) -> str:
-    """The text of results.md. `policy_info` as `terl_rt.logs.episode_log.policy_info` makes
+    """The text of results.md. `policy_info` as `terl_rt.policy.onnx_policy.policy_info` makes
     it: name, sha256, path and metadata (a dict of the ONNX metadata_props)."""
     metadata = policy_info.get("metadata") or {}
     name = policy_info.get("name", "unknown policy")
@@ -380,7 +380,7 @@ def write_report(
     """Write `out_dir`/results.png and `out_dir`/results.md (the folder is made if missing).
 
     results: the evaluations, in the order the tables list them; policy_info: name,
-    sha256, path and metadata, as `terl_rt.logs.episode_log.policy_info` gives them;
+    sha256, path and metadata, as `terl_rt.policy.onnx_policy.policy_info` gives them;
     command: the command line that produced them; date: when (default now, UTC).
     Raises `MatplotlibMissing` before writing anything when matplotlib is absent.
     """

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.logs.episode_log import EpisodeLogError, EpisodeLogReader, LoggedStep
+from terl_rt.logs.format import EpisodeLogError
+from terl_rt.logs.reader import EpisodeLogReader, LoggedStep
 from terl_rt.sim.simulator import Simulator
 from terl_rt.sim.state import LOGGED_FIELDS
 from terl_rt.sim.world import WORLD_VERSION

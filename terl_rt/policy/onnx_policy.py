@@ -15,6 +15,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
@@ -40,6 +41,7 @@ __all__ = [
     "describe_session",
     "observation_inputs",
     "open_session",
+    "policy_info",
     "session_options",
 ]
 
@@ -341,3 +343,9 @@ class OnnxPolicy:
                 f"the contract says float32 {list(shape)}"
             )
         return value
+
+
+def policy_info(policy: OnnxPolicy) -> dict[str, Any]:
+    """What logs and reports keep of a policy: name, sha256, path (str) and metadata
+    (its metadata_props)."""
+    return {"name": policy.name, "sha256": policy.sha256, "path": str(policy.path), "metadata": policy.metadata}
