@@ -15,11 +15,11 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate, run_episode, summarize
+from terl_rt.evaluation.episodes import evaluate, run_episode
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
 from terl_rt.policy.onnx_policy import OnnxPolicy
-from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario, ScenarioError
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

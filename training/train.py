@@ -40,8 +40,8 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
-from terl_rt.evaluation.episodes import summarize
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.metrics import summarize
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import CURRICULUM_STARTS, Scenario, curriculum_stage

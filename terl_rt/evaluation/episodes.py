@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
@@ -24,43 +24,12 @@ import numpy as np
 from terl_rt.logs.format import StepRecord
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, policy_info
-from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.simulator import Simulator
 
 Progress = Callable[[int, EpisodeMetrics], None]
 """Called after each finished episode with its index and metrics (in episode order)."""
-
-
-@dataclass(frozen=True)
-class Summary:
-    """Means over the episodes of a scenario."""
-
-    success_rate: float
-    """fraction of episodes with every evader encircled."""
-    travel_time_s_mean: float
-    """s: mean episode duration (steps x 0.5 s)."""
-    travel_time_s_std: float
-    """s: population standard deviation of the duration."""
-    collision_ratio_mean: float
-    """mean of collided pursuers / pursuers."""
-    steps_mean: float
-    """mean decision steps per episode."""
-
-
-def summarize(per_episode: Sequence[EpisodeMetrics]) -> Summary:
-    """Means (and the travel time's spread) over episodes; NaN for no episodes."""
-    if not per_episode:
-        nan = float("nan")
-        return Summary(nan, nan, nan, nan, nan)
-    travel = np.array([m.travel_time_s for m in per_episode])
-    return Summary(
-        success_rate=float(np.mean([m.success for m in per_episode])),
-        travel_time_s_mean=float(travel.mean()),
-        travel_time_s_std=float(travel.std()),
-        collision_ratio_mean=float(np.mean([m.collision_ratio for m in per_episode])),
-        steps_mean=float(np.mean([m.steps for m in per_episode])),
-    )
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,11 @@
-"""Episode metrics (world.md section 10)."""
+"""Episode metrics (world.md section 10) and their means over episodes."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+
+import numpy as np
 
 from terl_rt.sim.params import WorldParams
 from terl_rt.sim.state import WorldState
@@ -41,3 +44,33 @@ def episode_metrics(state: WorldState, env: int, params: WorldParams) -> Episode
         pursuers_collided=collided,
     )
 
+
+@dataclass(frozen=True)
+class Summary:
+    """Means over the episodes of a scenario."""
+
+    success_rate: float
+    """fraction of episodes with every evader encircled."""
+    travel_time_s_mean: float
+    """s: mean episode duration (steps x 0.5 s)."""
+    travel_time_s_std: float
+    """s: population standard deviation of the duration."""
+    collision_ratio_mean: float
+    """mean of collided pursuers / pursuers."""
+    steps_mean: float
+    """mean decision steps per episode."""
+
+
+def summarize(per_episode: Sequence[EpisodeMetrics]) -> Summary:
+    """Means (and the travel time's spread) over episodes; NaN for no episodes."""
+    if not per_episode:
+        nan = float("nan")
+        return Summary(nan, nan, nan, nan, nan)
+    travel = np.array([m.travel_time_s for m in per_episode])
+    return Summary(
+        success_rate=float(np.mean([m.success for m in per_episode])),
+        travel_time_s_mean=float(travel.mean()),
+        travel_time_s_std=float(travel.std()),
+        collision_ratio_mean=float(np.mean([m.collision_ratio for m in per_episode])),
+        steps_mean=float(np.mean([m.steps for m in per_episode])),
+    )
