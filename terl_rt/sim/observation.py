@@ -75,6 +75,17 @@ class Observation:
             "mask": self.mask,
         }
 
+    def rows(self, index: np.ndarray) -> Observation:
+        """The rows at flat indices `index` [R] (b * N + n) of observations with leading
+        shape [B, N]: leading shape [R]."""
+        def cut(array: np.ndarray) -> np.ndarray:
+            return array.reshape((-1,) + array.shape[2:])[index]
+
+        return Observation(
+            ego=cut(self.ego), teammates=cut(self.teammates), evaders=cut(self.evaders),
+            obstacles=cut(self.obstacles), mask=cut(self.mask), pursuer_index=cut(self.pursuer_index),
+        )
+
 
 def pursuit_status(geometry: Geometry, related_distance: float) -> np.ndarray:
     """[B, N] bool: the pursuer's nearest evader is within `related_distance` m. As in the

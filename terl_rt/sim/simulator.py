@@ -99,12 +99,4 @@ class Simulator:
         return snapshot(self._world.state, 0)
 
     def _active_rows(self, observation: Observation) -> Observation:
-        active = self._world.state.pursuer_active[0]
-        return Observation(
-            ego=observation.ego[0, active],
-            teammates=observation.teammates[0, active],
-            evaders=observation.evaders[0, active],
-            obstacles=observation.obstacles[0, active],
-            mask=observation.mask[0, active],
-            pursuer_index=np.flatnonzero(active),
-        )
+        return observation.rows(np.flatnonzero(self._world.state.pursuer_active[0]))
