@@ -15,7 +15,8 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate, run_episode
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.episodes import run_episode
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
 from terl_rt.policy.onnx_policy import OnnxPolicy
@@ -145,7 +146,7 @@ def test_interrupted_evaluation_keeps_the_finished_episodes_logged(policy, tmp_p
 def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
-        from terl_rt.evaluation.episodes import evaluate
+        from terl_rt.evaluation.episodes import evaluate_policy as evaluate
         from terl_rt.sim.scenario import Scenario
         evaluate({str(policy_path)!r}, Scenario.preset("small-15"), episodes=50, seed=0, log_path={str(log)!r})
     """)
@@ -170,7 +171,7 @@ def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, t
 def test_ctrl_c_stops_worker_evaluation_fast_and_closes_the_log(policy_path, tmp_path):
     log = tmp_path / "ctrl-c.mcap"
     script = textwrap.dedent(f"""
-        from terl_rt.evaluation.episodes import evaluate
+        from terl_rt.evaluation.episodes import evaluate_policy as evaluate
         from terl_rt.sim.scenario import Scenario
         evaluate({str(policy_path)!r}, Scenario.preset("small-11"), episodes=40, seed=0, workers=2,
                  log_path={str(log)!r})

@@ -10,7 +10,7 @@ from typing import Any
 import click
 
 import terl_rt
-from terl_rt.evaluation.episodes import ScenarioResult, evaluate
+from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import PAPER_SUITE, Scenario
@@ -78,15 +78,15 @@ def evaluate_with_progress(
     log: EpisodeLogWriter | None = None,
     threads: int | None = None,
 ) -> list[ScenarioResult]:
-    """`terl_rt.evaluation.episodes.evaluate` on each scenario in turn, with a progress bar per
-    scenario on stderr; the arguments are evaluate's."""
+    """`terl_rt.evaluation.episodes.evaluate_policy` on each scenario in turn, with a progress bar per
+    scenario on stderr; the arguments are evaluate_policy's."""
     results = []
     for scenario in scenarios:
         with click.progressbar(
             length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
             show_pos=True,
         ) as bar:
-            results.append(evaluate(
+            results.append(evaluate_policy(
                 policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
                 log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads,
             ))

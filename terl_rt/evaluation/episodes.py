@@ -135,7 +135,7 @@ def _worker_episode(scenario: Scenario, seed: int, record: bool) -> tuple[Episod
 # --- evaluation ---------------------------------------------------------------------
 
 
-def evaluate(
+def evaluate_policy(
     policy: OnnxPolicy | str | os.PathLike,
     scenario: Scenario,
     episodes: int,

@@ -18,7 +18,7 @@ SCALING_PURSUERS = (15, 80, 200, 400)
 
 
 @dataclass(frozen=True)
-class SimBenchmark:
+class SimulatorSpeed:
     """Speed of World.step with random pursuer actions and the default (APF) evaders."""
 
     scenario: str
@@ -38,7 +38,7 @@ class SimBenchmark:
         return asdict(self)
 
 
-def bench_sim(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimBenchmark:
+def simulator_speed(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimulatorSpeed:
     """Time `steps` batch steps (after `warmup` untimed ones): the scatter of random actions
     of the active pursuers and World.step; finished episodes restart untimed."""
     rollout = Rollout(World(scenario, num_envs=num_envs, seed=seed))
@@ -52,7 +52,7 @@ def bench_sim(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, 
         rollout.step(chosen)
         if k >= warmup:
             elapsed += time.perf_counter() - start
-    return SimBenchmark(
+    return SimulatorSpeed(
         scenario=scenario.name,
         pursuers=scenario.pursuers,
         evaders=scenario.evaders,
@@ -74,7 +74,7 @@ def scaling_scenario(pursuers: int) -> Scenario:
 
 
 @dataclass(frozen=True)
-class PolicyBenchmark:
+class PolicySpeed:
     """Time to choose the actions of all active pursuers: one policy call per step."""
 
     policy: str
@@ -97,7 +97,7 @@ class PolicyBenchmark:
         return asdict(self)
 
 
-def bench_policy(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicyBenchmark:
+def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicySpeed:
     """Time `steps` action choices (after `warmup` untimed ones) on real observations:
     the world of `Simulator(scenario, seed)` driven by the policy itself, restarted
     untimed when an episode ends."""
@@ -115,7 +115,7 @@ def bench_policy(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: 
         rollout.step(actions)
     ms = 1e3 * np.array(times)
     rows_mean = float(np.mean(rows))
-    return PolicyBenchmark(
+    return PolicySpeed(
         policy=policy.name,
         scenario=scenario.name,
         pursuers=scenario.pursuers,
