@@ -1,7 +1,8 @@
 """Pursuer observations in the layout of the ONNX policy contract (world.md section 5).
 
 Each observation has four token groups plus a mask, in the observer's ego frame:
-ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O].
+ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O];
+the names and feature widths are the contract's (terl_rt.policy.contract).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from functools import lru_cache
 import numpy as np
 
 from terl_rt.sim.dynamics import as_complex
+from terl_rt.policy.contract import EGO_FEATURES, INPUT_NAMES, TEAMMATE_FEATURES
 from terl_rt.sim.geometry import (
     Geometry,
     SlotGroup,
@@ -28,14 +30,6 @@ from terl_rt.sim.params import WorldParams
 from terl_rt.sim.perception import perception_reach
 from terl_rt.sim.state import WorldState
 
-EGO_FEATURES = 4
-"""ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""
-TEAMMATE_FEATURES = 7
-"""teammate token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), pursuit_status]."""
-EVADER_FEATURES = 7
-"""evader token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), heading (rad, [0, 2pi))]."""
-OBSTACLE_FEATURES = 5
-"""obstacle token: [px, py (m), r (m), d (m), bearing (rad)]."""
 TEAMMATE_SLOTS = 5
 """P: teammate slots, nearest perceived active pursuers first."""
 OBSTACLE_SLOTS = 5
@@ -66,14 +60,8 @@ class Observation:
     """[...] int64: the pursuer each row belongs to."""
 
     def as_inputs(self) -> dict[str, np.ndarray]:
-        """The ONNX contract inputs, by name: ego, teammates, evaders, obstacles, mask."""
-        return {
-            "ego": self.ego,
-            "teammates": self.teammates,
-            "evaders": self.evaders,
-            "obstacles": self.obstacles,
-            "mask": self.mask,
-        }
+        """The ONNX contract inputs by name (INPUT_NAMES, the names of their fields here)."""
+        return {name: getattr(self, name) for name in INPUT_NAMES}
 
     def rows(self, index: np.ndarray) -> Observation:
         """The rows at flat indices `index` [R] (b * N + n) of observations with leading
