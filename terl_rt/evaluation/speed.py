@@ -1,4 +1,5 @@
-"""Benchmarks of the simulator and of policies (timings are reported, never asserted in tests)."""
+"""Speed of the simulator and of policies, `terl-rt bench` (timings are reported, never
+asserted in tests)."""
 
 from __future__ import annotations
 

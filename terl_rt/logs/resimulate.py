@@ -1,4 +1,5 @@
-"""Replay a logged episode: re-simulate it from its scenario, seed and actions, bit for bit.
+"""Re-simulate a logged episode from its scenario, seed and actions, bit for bit
+(`terl-rt replay --verify`).
 
 The simulator is deterministic (same scenario, seed and actions give the same episode),
 so every /state of a log must come out of the simulator again exactly: float64 fields

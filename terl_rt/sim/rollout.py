@@ -74,11 +74,10 @@ class Rollout:
         if turn is None:
             raise RuntimeError("step: call turn() first (once per step)")
         chosen = np.asarray(chosen)
-        if chosen.shape != turn.rows.shape or (chosen.size and chosen.dtype.kind not in "iu"):
-            raise ValueError(
-                f"chosen: expected {turn.rows.shape} integer action indices (one per deciding pursuer), "
-                f"got {chosen.dtype} {chosen.shape}"
-            )
+        if chosen.shape != turn.rows.shape:
+            raise ValueError(f"chosen: expected shape {turn.rows.shape} (one action per deciding pursuer), got {chosen.shape}")
+        if chosen.size and chosen.dtype.kind not in "iu":
+            raise ValueError(f"chosen: expected integer action indices, got dtype {chosen.dtype}")
         world = self.world
         actions = np.zeros(world.state.pursuer_active.shape, np.int64)
         actions.reshape(-1)[turn.rows] = chosen
