@@ -12,8 +12,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.sim.dynamics import as_complex
 from terl_rt.policy.contract import EGO_FEATURES, INPUT_NAMES, TEAMMATE_FEATURES
+from terl_rt.sim.dynamics import as_complex
 from terl_rt.sim.geometry import (
     Geometry,
     SlotGroup,
