@@ -28,8 +28,8 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from terl_rt.actions import PURSUER_ACCELERATIONS, PURSUER_ACTIONS, PURSUER_YAW_RATES, action_table
-from terl_rt.observation import Observation
+from terl_rt.sim.actions import PURSUER_ACCELERATIONS, PURSUER_ACTIONS, PURSUER_YAW_RATES, action_table
+from terl_rt.sim.observation import Observation
 
 OPSET = 17
 IR_VERSION = 9

@@ -12,11 +12,11 @@ from typing import Sequence
 
 import numpy as np
 
-from terl_rt.evader import ConstantEvader
-from terl_rt.geometry import Geometry
-from terl_rt.params import WorldParams
-from terl_rt.scenario import InitialState, Scenario
-from terl_rt.state import WorldState
+from terl_rt.sim.evader import ConstantEvader
+from terl_rt.sim.geometry import Geometry
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.scenario import InitialState, Scenario
+from terl_rt.sim.state import WorldState
 
 DEFAULT = WorldParams()
 """The spec's default constants."""

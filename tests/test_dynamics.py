@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from sim_helpers import PURSUER_IDLE, far_row, initial_scenario
 
-from terl_rt.actions import EVADER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.dynamics import integrate, signed_circulation
-from terl_rt.evader import ConstantEvader
-from terl_rt.world import World
+from terl_rt.sim.actions import EVADER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.dynamics import integrate, signed_circulation
+from terl_rt.sim.evader import ConstantEvader
+from terl_rt.sim.world import World
 
 DT = 0.05
 K_PURSUER = 0.4 / 3.0  # drag k = max(a_set) / s_max, 1/s

@@ -1,4 +1,4 @@
-"""Embedding a policy in one's own controller (terl_rt.embed)."""
+"""Embedding a policy in one's own controller (terl_rt.policy.embed)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-import terl_rt.embed
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.embed import decide, observe
-from terl_rt.policy import OnnxPolicy
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
+import terl_rt.policy.embed
+from terl_rt.policy.embed import decide, observe
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.actions import PURSUER_ACTIONS
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.simulator import Simulator
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 GROUPS = ("ego", "teammates", "evaders", "obstacles", "mask")
@@ -48,7 +48,7 @@ def run_example(code: str, policy_path: Path) -> dict:
 
 
 def test_module_example_runs(policy_path, capsys):
-    (example,) = python_blocks(terl_rt.embed.__doc__)
+    (example,) = python_blocks(terl_rt.policy.embed.__doc__)
     namespace = run_example(example, policy_path)
     decision = namespace["decision"]
     assert 0 <= decision.action < 9
@@ -59,7 +59,7 @@ def test_readme_embedding_example_runs(policy_path):
     readme = REPO_ROOT / "README.md"
     if not readme.exists():
         pytest.skip("no README.md yet")
-    examples = [block for block in python_blocks(readme.read_text()) if "terl_rt.embed" in block]
+    examples = [block for block in python_blocks(readme.read_text()) if "terl_rt.policy.embed" in block]
     if not examples:
         pytest.skip("README.md has no embedding example")
     for example in examples:

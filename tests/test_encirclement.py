@@ -18,10 +18,11 @@ from sim_helpers import (
     stack_states,
 )
 
-from terl_rt.encirclement import collisions, encircle, remember_perceived
-from terl_rt.evader import ConstantEvader
-from terl_rt.params import WorldParams
-from terl_rt.world import World
+from terl_rt.sim.collisions import collisions
+from terl_rt.sim.encirclement import encircle, remember_perceived
+from terl_rt.sim.evader import ConstantEvader
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.world import World
 
 EVADER = [50.0, 50.0, 0.0, 0.0]
 

@@ -12,16 +12,13 @@ from mcap.writer import Writer
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.episode_log import (
-    TOPIC_WORLD,
-    EpisodeLogError,
-    EpisodeLogReader,
-    EpisodeLogWriter,
-    policy_info,
-)
-from terl_rt.evaluate import evaluate, run_episode
-from terl_rt.foxglove import COLORS, SCENE_UPDATE_SCHEMA
-from terl_rt.policy import OnnxPolicy
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.episodes import run_episode
+from terl_rt.logs.format import TOPIC_WORLD, EpisodeLogError
+from terl_rt.logs.foxglove import COLORS, SCENE_UPDATE_SCHEMA
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 
 STEPS = 6
 """Step limit of the logged episodes."""
@@ -107,6 +104,16 @@ def test_logged_states_read_back_bit_for_bit(policy, log_path):
         for name, value in step.state.items():
             original = np.asarray(record.state[name])
             assert value.dtype == original.dtype and value.tobytes() == original.tobytes(), name
+
+
+def test_state_message_holds_the_public_state_and_no_bookkeeping_of_the_rules(log_path):
+    step = next(EpisodeLogReader(log_path).steps(0))
+    assert list(step.payload("/state")) == [
+        "episode",
+        "pursuer_xy", "pursuer_theta", "pursuer_speed", "pursuer_vel", "pursuer_active",
+        "evader_xy", "evader_theta", "evader_speed", "evader_vel", "evader_active",
+        "obstacle_xy", "obstacle_r", "vortex_xy", "vortex_gamma", "vortex_clockwise", "step",
+    ]
 
 
 def test_logged_step_one_holds_actions_rewards_and_events(log_path):

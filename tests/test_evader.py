@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from sim_helpers import DEFAULT, geometry_of, initial_scenario, make_state, random_state, to_ego
 
-from terl_rt.actions import EVADER_YAW_RATES
-from terl_rt.evader import ConstantEvader, PublishedAPFEvader
-from terl_rt.world import World
+from terl_rt.sim.actions import EVADER_YAW_RATES
+from terl_rt.sim.evader import ConstantEvader, PublishedAPFEvader
+from terl_rt.sim.world import World
 
 ARENA = (100.0, 100.0)
 K_REP, D0 = 5000.0, 15.0

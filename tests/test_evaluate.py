@@ -1,4 +1,4 @@
-"""Evaluation: episodes, seeds, workers, summaries and interrupted runs (terl_rt.evaluate)."""
+"""Evaluation: episodes, seeds, workers, summaries and interrupted runs (terl_rt.evaluation.episodes)."""
 
 from __future__ import annotations
 
@@ -15,12 +15,13 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.episode_log import EpisodeLogReader
-from terl_rt.evaluate import evaluate, run_episode, summarize
-from terl_rt.metrics import EpisodeMetrics
-from terl_rt.policy import OnnxPolicy
-from terl_rt.replay import verify
-from terl_rt.scenario import Scenario, ScenarioError
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.episodes import run_episode
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.resimulate import verify
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.metrics import EpisodeMetrics, summarize
+from terl_rt.sim.scenario import Scenario, ScenarioError
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -145,8 +146,8 @@ def test_interrupted_evaluation_keeps_the_finished_episodes_logged(policy, tmp_p
 def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
-        from terl_rt.evaluate import evaluate
-        from terl_rt.scenario import Scenario
+        from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+        from terl_rt.sim.scenario import Scenario
         evaluate({str(policy_path)!r}, Scenario.preset("small-15"), episodes=50, seed=0, log_path={str(log)!r})
     """)
     process = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path)
@@ -170,8 +171,8 @@ def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, t
 def test_ctrl_c_stops_worker_evaluation_fast_and_closes_the_log(policy_path, tmp_path):
     log = tmp_path / "ctrl-c.mcap"
     script = textwrap.dedent(f"""
-        from terl_rt.evaluate import evaluate
-        from terl_rt.scenario import Scenario
+        from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+        from terl_rt.sim.scenario import Scenario
         evaluate({str(policy_path)!r}, Scenario.preset("small-11"), episodes=40, seed=0, workers=2,
                  log_path={str(log)!r})
     """)

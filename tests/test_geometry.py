@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from sim_helpers import geometry_of, make_state
 
-from terl_rt.geometry import SlotGroup, candidate_key, nearest_slots, per_entity
+from terl_rt.sim.geometry import SlotGroup, candidate_key, nearest_slots, per_entity
 
 INF = np.inf
 

@@ -19,11 +19,11 @@ from sim_helpers import (
     wrap_0_2pi,
 )
 
-from terl_rt.evader import ConstantEvader
-from terl_rt.observation import ENTITY_TYPES, pursuer_observations, pursuit_status
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
-from terl_rt.world import World
+from terl_rt.sim.evader import ConstantEvader
+from terl_rt.sim.observation import ENTITY_TYPES, pursuer_observations, pursuit_status
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.world import World
 
 R = DEFAULT.perception_radius  # 20 m
 P_SLOTS, O_SLOTS = 5, 5

@@ -23,7 +23,7 @@ from onnx_models import (
     write_truncated_policy,
 )
 
-from terl_rt.policy import (
+from terl_rt.policy.onnx_policy import (
     ContractError,
     OnnxPolicy,
     action_to_control,
@@ -365,7 +365,7 @@ def test_action_to_control_rejects_bad_indices(actions):
 
 def test_importing_the_policy_module_loads_neither_torch_nor_onnx():
     code = (
-        "import sys, terl_rt.policy, terl_rt.contract; "
+        "import sys, terl_rt.policy.onnx_policy, terl_rt.policy.contract; "
         "print(sorted(m for m in ('torch', 'onnx') if m in sys.modules))"
     )
     result = subprocess.run(

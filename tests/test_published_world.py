@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from sim_helpers import DEFAULT, PURSUER_IDLE, far_row, geometry_of, initial_scenario, make_state, ring
 
-from terl_rt.encirclement import encircle, remember_perceived
-from terl_rt.evader import ConstantEvader, _repulsion
-from terl_rt.reward import REWARD_TERMS, first_perceived_obstacle_distance, published_reward_terms
-from terl_rt.scenario import Scenario, ScenarioError
-from terl_rt.world import World
+from terl_rt.sim.encirclement import encircle, remember_perceived
+from terl_rt.sim.evader import ConstantEvader, _repulsion
+from terl_rt.sim.reward import REWARD_TERMS, first_perceived_obstacle_distance, published_reward_terms
+from terl_rt.sim.scenario import Scenario, ScenarioError
+from terl_rt.sim.world import World
 
 RECORDED = Path(__file__).parent / "data" / "published"
 EPISODES = sorted(RECORDED.glob("*.json"))

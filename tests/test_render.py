@@ -1,4 +1,4 @@
-"""Rendering logged episodes to PNG and GIF (terl_rt.render)."""
+"""Rendering logged episodes to PNG and GIF (terl_rt.logs.render)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from onnx_models import write_test_policy
 from PIL import Image
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluate import evaluate
-from terl_rt.foxglove import COLORS
-from terl_rt.render import RenderError, render
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.logs.foxglove import COLORS
+from terl_rt.logs.render import RenderError, render
 
 STEPS = 8
 

@@ -1,4 +1,4 @@
-"""Bit-exact replay of logged episodes (terl_rt.replay.verify)."""
+"""Bit-exact replay of logged episodes (terl_rt.logs.resimulate.verify)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,15 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.episode_log import EpisodeLogError, EpisodeLogReader, EpisodeLogWriter, policy_info
-from terl_rt.evaluate import evaluate, run_episode
-from terl_rt.policy import OnnxPolicy
-from terl_rt.replay import verify
-from terl_rt.scenario import Scenario
-from terl_rt.world import WORLD_VERSION
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.episodes import run_episode
+from terl_rt.logs.format import EpisodeLogError
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.resimulate import verify
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import WORLD_VERSION
 
 
 @pytest.fixture(scope="module")

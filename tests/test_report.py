@@ -1,4 +1,4 @@
-"""`terl-rt report` and terl_rt.report: results.md and results.png against the paper.
+"""`terl-rt report` and terl_rt.evaluation.report: results.md and results.png against the paper.
 
 Most tests build ScenarioResults by hand (no simulation), so the goal sentences can be
 checked against numbers chosen on either side of each goal.
@@ -16,9 +16,9 @@ from onnx_models import write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
-from terl_rt.evaluate import ScenarioResult
-from terl_rt.paper import GOALS, PRESET_GROUPS, TERL_BY_GROUP, scale_group
-from terl_rt.report import (
+from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.paper import GOALS, PRESET_GROUPS, TERL_BY_GROUP, scale_group
+from terl_rt.evaluation.report import (
     MatplotlibMissing,
     goal_checks,
     group_summaries,
@@ -26,7 +26,7 @@ from terl_rt.report import (
     where_it_stands,
     write_report,
 )
-from terl_rt.scenario import PAPER_SUITE
+from terl_rt.sim.scenario import PAPER_SUITE
 
 POLICY_INFO = {
     "name": "terl-test",

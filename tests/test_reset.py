@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from sim_helpers import initial_scenario
 
-from terl_rt.params import WorldParams
-from terl_rt.scenario import Scenario, ScenarioError
-from terl_rt.world import World
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.scenario import Scenario, ScenarioError
+from terl_rt.sim.world import World
 
 PRESETS = ("small-15", "medium-56", "large-80", "cc-28", "curriculum-1", "curriculum-3")
 R0 = WorldParams().vortex_core_radius

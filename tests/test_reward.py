@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from sim_helpers import DEFAULT, PURSUER_IDLE, far_row, geometry_of, initial_scenario, make_state, random_state, ring
 
-from terl_rt.encirclement import encircle, remember_perceived
-from terl_rt.evader import ConstantEvader
-from terl_rt.reward import REWARD_TERMS, paper_reward_terms
-from terl_rt.world import World
+from terl_rt.sim.encirclement import encircle, remember_perceived
+from terl_rt.sim.evader import ConstantEvader
+from terl_rt.sim.reward import REWARD_TERMS, paper_reward_terms
+from terl_rt.sim.world import World
 
 ARENA = (100.0, 100.0)
 EVADER = [50.0, 50.0, 0.0, 0.0]

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from sim_helpers import initial_scenario
 
-from terl_rt.params import WorldParams
-from terl_rt.scenario import (
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.scenario import (
     PAPER_SUITE,
     InitialState,
     Scenario,

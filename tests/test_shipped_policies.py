@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from terl_rt import Scenario, Simulator
-from terl_rt.policy import OnnxPolicy, check_contract
+from terl_rt.policy.onnx_policy import OnnxPolicy, check_contract
 
 EXPORTED = Path(__file__).resolve().parent.parent / "exported"
 SHIPPED = sorted(EXPORTED.glob("*.onnx"))

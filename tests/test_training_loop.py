@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from terl_rt.observation import Observation
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.policy import OnnxPolicy
-from terl_rt.scenario import Scenario, curriculum_stage
-from terl_rt.simulator import Simulator
-from terl_rt.world import StepResult, World
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario, curriculum_stage
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.world import StepResult, World
 from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import Config, ConfigError, packaged_configs

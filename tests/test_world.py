@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from sim_helpers import PURSUER_IDLE, far_row, idle_evader, initial_scenario, ring
 
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
-from terl_rt.state import WorldState
-from terl_rt.world import World
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.state import WorldState
+from terl_rt.sim.world import World
 
 STATE_FIELDS = [f.name for f in dataclasses.fields(WorldState)]
 

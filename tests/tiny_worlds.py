@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from terl_rt.scenario import Scenario
+from terl_rt.sim.scenario import Scenario
 
 
 def capture_scenario(max_steps: int = 12) -> Scenario:

@@ -16,8 +16,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from terl_rt.reward import REWARD_VARIANTS
-from terl_rt.scenario import CURRICULUM_STARTS, PRESETS
+from terl_rt.sim.reward import REWARD_VARIANTS
+from terl_rt.sim.scenario import CURRICULUM_STARTS, PRESETS
 
 CURRICULUM_STAGES = tuple(name for _, name in CURRICULUM_STARTS)
 """The curriculum's stage presets, in order (world.md section 11)."""

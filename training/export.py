@@ -21,21 +21,18 @@ import onnxruntime as ort
 import torch
 from torch import nn
 
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.scenario import PAPER_SUITE, Scenario
-from terl_rt.simulator import Simulator
+from terl_rt.policy.contract import CONTRACT_VERSION, INPUT_NAMES
+from terl_rt.sim.actions import PURSUER_ACTIONS
+from terl_rt.sim.scenario import PAPER_SUITE, Scenario
+from terl_rt.sim.simulator import Simulator
 from training.networks.encoders import QNetwork
 
-CONTRACT_VERSION = "1"
-"""Value of the `terl.contract` metadata key."""
 OPSET = 17
 """ONNX opset the policies are written with."""
 PARITY_TOLERANCE = 1e-4
 """Largest torch-onnxruntime difference `check_parity` accepts, relative to the output's
 largest magnitude when that is above 1 (float32 round-off grows with the values: a
 trained policy's Q-values are in the hundreds)."""
-INPUT_NAMES = ("ego", "teammates", "evaders", "obstacles", "mask")
-"""Contract input names, in call order."""
 
 
 class ParityError(RuntimeError):

@@ -47,12 +47,12 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS
-from terl_rt.evaluate import summarize
-from terl_rt.observation import Observation
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import Scenario
-from terl_rt.world import StepResult, World
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.metrics import summarize
+from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import StepResult, World
 from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
 from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
 from training.config import CURRICULUM_STAGES, Config

@@ -7,7 +7,6 @@ import sys
 
 import click
 
-from terl_rt.bench import SCALING_PURSUERS, bench_policy, bench_sim, scaling_scenario
 from terl_rt.cli.options import (
     json_option,
     open_policy,
@@ -16,6 +15,7 @@ from terl_rt.cli.options import (
     seed_option,
     threads_option,
 )
+from terl_rt.evaluation.speed import SCALING_PURSUERS, policy_speed, scaling_scenario, simulator_speed
 
 steps_option = click.option(
     "--steps", type=click.IntRange(min=1), default=500, show_default=True, help="Timed steps."
@@ -40,7 +40,7 @@ def bench() -> None:
 def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
     """Simulator speed: environment steps per second and ms per step, with random
     pursuer actions and the paper's APF evaders (observations included)."""
-    result = bench_sim(scenario, steps, num_envs=num_envs, seed=seed)
+    result = simulator_speed(scenario, steps, num_envs=num_envs, seed=seed)
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return
@@ -60,7 +60,7 @@ def scaling(steps: int, as_json: bool) -> None:
     rows = []
     with click.progressbar(SCALING_PURSUERS, label="scaling", file=sys.stderr) as counts:
         for pursuers in counts:
-            rows.append(bench_sim(scaling_scenario(pursuers), steps).to_dict())
+            rows.append(simulator_speed(scaling_scenario(pursuers), steps).to_dict())
     if as_json:
         click.echo(json.dumps({"rows": rows}))
         return
@@ -77,11 +77,11 @@ def scaling(steps: int, as_json: bool) -> None:
 @seed_option
 @threads_option
 @json_option
-def policy_speed(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
+def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
     """Policy speed: ms per step to choose the actions of all active pursuers (one
-    evaluate call on the real observations of a Simulator driven by the policy)."""
+    policy call on the real observations of a Simulator's world driven by the policy)."""
     policy = open_policy(policy_path, threads=threads)
-    result = bench_policy(policy, scenario, steps, seed=seed)
+    result = policy_speed(policy, scenario, steps, seed=seed)
     if as_json:
         click.echo(json.dumps({**result.to_dict(), "threads": threads}))
         return

@@ -14,6 +14,7 @@ from terl_rt.cli.options import (
     log_option,
     max_steps_option,
     open_policy,
+    policy_json,
     policy_option,
     resolve_scenarios,
     scenario_file_option,
@@ -23,8 +24,9 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.episode_log import EpisodeLogWriter, policy_info
-from terl_rt.evaluate import ScenarioResult
+from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import policy_info
 
 HEADER = (
     f"{'scenario':<14}{'episodes':>9}{'success':>9}{'travel time (s)':>18}"
@@ -60,7 +62,8 @@ def eval_command(
     any episode can be run again alone. A progress bar goes to stderr."""
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
-    log = EpisodeLogWriter(Path(log_path), policy_info(policy)) if log_path else None
+    info = policy_info(policy)
+    log = EpisodeLogWriter(Path(log_path), info) if log_path else None
     try:
         results = evaluate_with_progress(
             policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, log=log, threads=threads,
@@ -71,7 +74,7 @@ def eval_command(
 
     if as_json:
         click.echo(json.dumps({
-            "policy": {"name": policy.name, "path": str(policy.path), "sha256": policy.sha256},
+            "policy": policy_json(info),
             "scenarios": [result.to_dict() for result in results],
         }))
         return

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from terl_rt.cli.options import BadInput, json_option
-from terl_rt.policy import check_contract
+from terl_rt.policy.onnx_policy import check_contract
 
 
 @click.command()

@@ -13,10 +13,10 @@ from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
 from terl_rt.cli.scenarios import scenarios
-from terl_rt.contract import ContractError
-from terl_rt.episode_log import EpisodeLogError
-from terl_rt.render import RenderError
-from terl_rt.scenario import ScenarioError
+from terl_rt.logs.format import EpisodeLogError
+from terl_rt.logs.render import RenderError
+from terl_rt.policy.contract import ContractError
+from terl_rt.sim.scenario import ScenarioError
 
 USER_ERRORS = (
     ScenarioError, ContractError, EpisodeLogError, RenderError,

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
 import click
 
 import terl_rt
-from terl_rt.episode_log import EpisodeLogWriter
-from terl_rt.evaluate import ScenarioResult, evaluate
-from terl_rt.policy import ContractError, OnnxPolicy
-from terl_rt.scenario import PAPER_SUITE, Scenario
+from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
+from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 
 DEFAULT_POLICY = Path("exported") / "terl.onnx"
 """The default policy, relative to the repository checkout (or the working directory)."""
@@ -49,6 +51,11 @@ def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
         raise ContractError(f"{resolved}: {error}") from error
 
 
+def policy_json(info: Mapping[str, Any]) -> dict[str, str]:
+    """The policy in --json output: name, sha256 and path of a `policy_info` (or of a log's policy)."""
+    return {key: info[key] for key in ("name", "sha256", "path")}
+
+
 def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: str | None) -> list[Scenario]:
     """The scenarios of `--scenario ... | --scenario-file F | --suite paper` (default small-15)."""
     given = sum(bool(choice) for choice in (names, scenario_file, suite))
@@ -71,15 +78,15 @@ def evaluate_with_progress(
     log: EpisodeLogWriter | None = None,
     threads: int | None = None,
 ) -> list[ScenarioResult]:
-    """`terl_rt.evaluate.evaluate` on each scenario in turn, with a progress bar per
-    scenario on stderr; the arguments are evaluate's."""
+    """`terl_rt.evaluation.episodes.evaluate_policy` on each scenario in turn, with a progress bar per
+    scenario on stderr; the arguments are evaluate_policy's."""
     results = []
     for scenario in scenarios:
         with click.progressbar(
             length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
             show_pos=True,
         ) as bar:
-            results.append(evaluate(
+            results.append(evaluate_policy(
                 policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
                 log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads,
             ))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from terl_rt.render import FORMATS, render
+from terl_rt.logs.render import FORMATS, render
 
 
 @click.command("render")

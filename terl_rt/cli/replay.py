@@ -6,9 +6,9 @@ import json
 
 import click
 
-from terl_rt.cli.options import episode_option, json_option
-from terl_rt.episode_log import EpisodeLogReader, LoggedEpisode
-from terl_rt.replay import verify
+from terl_rt.cli.options import episode_option, json_option, policy_json
+from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
+from terl_rt.logs.resimulate import verify
 
 
 def _episode_dict(entry: LoggedEpisode) -> dict:
@@ -66,7 +66,7 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
         ]
     if as_json:
         out = {
-            "log": log, "policy": {k: reader.policy[k] for k in ("name", "sha256", "path")},
+            "log": log, "policy": policy_json(reader.policy),
             "truncated": reader.truncated, "problem": reader.problem,
             "episodes": [_episode_dict(entry) for entry in entries],
         }

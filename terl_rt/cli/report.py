@@ -15,14 +15,15 @@ from terl_rt.cli.options import (
     json_option,
     max_steps_option,
     open_policy,
+    policy_json,
     policy_option,
     resolve_scenarios,
     seed_option,
     threads_option,
     workers_option,
 )
-from terl_rt.episode_log import policy_info
-from terl_rt.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+from terl_rt.evaluation.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+from terl_rt.policy.onnx_policy import policy_info
 
 
 def command_line(
@@ -84,11 +85,12 @@ def report_command(policy_path, scenario_names, episodes, seed, max_steps, worke
         policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
     )
     command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out)
-    paths = write_report(results, policy_info(policy), out, command)
+    info = policy_info(policy)
+    paths = write_report(results, info, out, command)
 
     if as_json:
         click.echo(json.dumps({
-            "policy": {"name": policy.name, "path": str(policy.path), "sha256": policy.sha256},
+            "policy": policy_json(info),
             "scenarios": [result.to_dict() for result in results],
             "groups": [summary.to_dict() for summary in group_summaries(results)],
             "goals": [check.to_dict() for check in goal_checks(results)],

@@ -7,7 +7,7 @@ import json
 import click
 
 from terl_rt.cli.options import json_option
-from terl_rt.scenario import PAPER_SUITE, Scenario
+from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 
 
 @click.command()

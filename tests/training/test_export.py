@@ -10,7 +10,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from terl_rt.actions import PURSUER_ACTIONS
+from terl_rt.sim.actions import PURSUER_ACTIONS
 from training import export
 from training.export import ParityError, check_parity, example_inputs, export_onnx, read_metadata
 from training.networks import build_network, network_classes

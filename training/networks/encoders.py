@@ -15,13 +15,8 @@ from typing import Any, ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.observation import (
-    EGO_FEATURES,
-    EVADER_FEATURES,
-    OBSTACLE_FEATURES,
-    TEAMMATE_FEATURES,
-)
+from terl_rt.policy.contract import EGO_FEATURES, EVADER_FEATURES, OBSTACLE_FEATURES, TEAMMATE_FEATURES
+from terl_rt.sim.actions import PURSUER_ACTIONS
 
 NUM_COSINES = 64
 """Cosine features of the IQN fraction embedding, cos(pi * i * tau) for i = 0..63."""

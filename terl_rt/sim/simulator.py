@@ -6,12 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.evader import EvaderPolicy
-from terl_rt.metrics import EpisodeMetrics
-from terl_rt.observation import Observation
-from terl_rt.reward import REWARD_TERMS
-from terl_rt.scenario import Scenario
-from terl_rt.world import StepResult, World
+from terl_rt.sim.evader import EvaderPolicy
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.state import snapshot
+from terl_rt.sim.world import StepResult, World
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,7 @@ class StepInfo:
     reward: np.ndarray
     """[N] float64: each pursuer's reward (0 for pursuers inactive at the step start)."""
     reward_terms: dict[str, np.ndarray]
-    """term name (terl_rt.reward.REWARD_TERMS) -> [N] float64."""
+    """term name (terl_rt.sim.reward.REWARD_TERMS) -> [N] float64."""
     collided: np.ndarray
     """[N] bool: pursuers that collided in this step."""
     captured: np.ndarray
@@ -92,29 +93,10 @@ class Simulator:
         pursuer_speed [N], pursuer_vel [N, 2], pursuer_active [N], pursuer_collided [N],
         evader_xy [M, 2], evader_theta [M], evader_speed [M], evader_vel [M, 2],
         evader_active [M], obstacle_xy [O, 2], obstacle_r [O], vortex_xy [V, 2],
-        vortex_gamma [V], vortex_clockwise [V], step []."""
-        s = self._world.state
-        if s is None:
+        vortex_gamma [V], vortex_clockwise [V], step [] (sim.state.snapshot)."""
+        if self._world.state is None:
             raise RuntimeError("state: call reset() first")
-        out = {
-            name: getattr(s, name)[0].copy()
-            for name in (
-                "pursuer_xy", "pursuer_theta", "pursuer_speed", "pursuer_vel", "pursuer_active",
-                "evader_xy", "evader_theta", "evader_speed", "evader_vel", "evader_active",
-                "obstacle_xy", "obstacle_r", "vortex_xy", "vortex_gamma", "vortex_clockwise",
-            )
-        }
-        out["pursuer_collided"] = ~out["pursuer_active"]
-        out["step"] = np.int64(s.steps[0])
-        return out
+        return snapshot(self._world.state, 0)
 
     def _active_rows(self, observation: Observation) -> Observation:
-        active = self._world.state.pursuer_active[0]
-        return Observation(
-            ego=observation.ego[0, active],
-            teammates=observation.teammates[0, active],
-            evaders=observation.evaders[0, active],
-            obstacles=observation.obstacles[0, active],
-            mask=observation.mask[0, active],
-            pursuer_index=np.flatnonzero(active),
-        )
+        return observation.rows(np.flatnonzero(self._world.state.pursuer_active[0]))

@@ -11,17 +11,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.dynamics import as_pairs, integrate, signed_circulation
-from terl_rt.encirclement import collisions, encircle, remember_perceived
-from terl_rt.evader import EvaderPolicy, PublishedAPFEvader
-from terl_rt.geometry import Geometry
-from terl_rt.metrics import EpisodeMetrics, episode_metrics
-from terl_rt.observation import Observation, pursuer_observations, pursuit_status
-from terl_rt.reset import Placement, place
-from terl_rt.reward import first_perceived_obstacle_distance, paper_reward_terms, published_reward_terms
-from terl_rt.scenario import Scenario
-from terl_rt.state import WorldState
+from terl_rt.sim.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.collisions import collisions
+from terl_rt.sim.dynamics import as_pairs, integrate, signed_circulation
+from terl_rt.sim.encirclement import encircle, remember_perceived
+from terl_rt.sim.evader import EvaderPolicy, PublishedAPFEvader
+from terl_rt.sim.geometry import Geometry
+from terl_rt.sim.metrics import EpisodeMetrics, episode_metrics
+from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
+from terl_rt.sim.reset import Placement, place
+from terl_rt.sim.reward import first_perceived_obstacle_distance, paper_reward_terms, published_reward_terms
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.state import WorldState
 
 
 WORLD_VERSION = "2"
@@ -38,7 +39,7 @@ class StepResult:
     reward: np.ndarray
     """[B, N] float64: total reward of each pursuer (0 for those inactive at the step start)."""
     reward_terms: np.ndarray
-    """[B, N, 7] float64: the terms, in terl_rt.reward.REWARD_TERMS order."""
+    """[B, N, 7] float64: the terms, in terl_rt.sim.reward.REWARD_TERMS order."""
     acted: np.ndarray
     """[B, N] bool: pursuers active at the step start (they acted and get a reward)."""
     collided: np.ndarray

@@ -1,7 +1,7 @@
 """Scripted evaders (world.md section 8): the paper's artificial-potential-field evader.
 
 An evader policy maps the world to one action index per evader, [B, M] int64 into
-the evader action table (terl_rt.actions.EVADER_ACTIONS). Any object with the
+the evader action table (terl_rt.sim.actions.EVADER_ACTIONS). Any object with the
 `EvaderPolicy.act` signature can be passed to the simulator.
 """
 
@@ -12,11 +12,12 @@ from typing import Protocol
 
 import numpy as np
 
-from terl_rt.actions import EVADER_YAW_RATES
-from terl_rt.dynamics import TWO_PI, as_complex
-from terl_rt.geometry import Geometry, SlotGroup, candidate_key, entity_table, nearest_slots, per_entity, take, take_rows
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.actions import EVADER_YAW_RATES
+from terl_rt.sim.dynamics import TWO_PI, as_complex
+from terl_rt.sim.geometry import Geometry, SlotGroup, candidate_key, entity_table, nearest_slots, per_entity, take, take_rows
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.perception import perception_reach
+from terl_rt.sim.state import WorldState
 
 APF_SLOTS = 5
 """nearest obstacles, pursuers and other evaders an evader takes into account."""
@@ -111,11 +112,11 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     # Candidates: perceived obstacles and perceived robots other than oneself: active
     # evaders, and the pursuers of state.pursuer_perceived (those that collided in the
     # last step included, world.md section 6).
-    reach = p.perception_radius + p.robot_radius
+    reach = perception_reach(p.robot_radius, p)
     limit = per_entity(
         np.where(state.pursuer_perceived, reach, -1.0),
         np.where(state.evader_active, reach, -1.0),
-        p.perception_radius + state.obstacle_r,
+        perception_reach(state.obstacle_r, p),
         blank=-1.0,
     )
     key = candidate_key(distance, num_pursuers, limit)

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from terl_rt.params import WorldParams
-from terl_rt.reward import REWARD_VARIANTS
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.reward import REWARD_VARIANTS
 
 
 class ScenarioError(ValueError):

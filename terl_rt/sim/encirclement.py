@@ -1,4 +1,4 @@
-"""Collisions (world.md section 6) and the encirclement test (section 7)."""
+"""The encirclement test (world.md section 7)."""
 
 from __future__ import annotations
 
@@ -6,25 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.dynamics import TWO_PI
-from terl_rt.geometry import Geometry, heading, not_self_columns, per_entity, perceived_pursuers
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
-
-
-def collisions(state: WorldState, geometry: Geometry, params: WorldParams) -> np.ndarray:
-    """[B, N] bool: active pursuers whose disc touches an active pursuer, an active
-    evader or an obstacle (centre distance minus both radii <= 0), after the move."""
-    num_pursuers = state.pursuer_active.shape[1]
-    r = params.robot_radius
-    contact = per_entity(
-        np.where(state.pursuer_active, 2 * r, -1.0),
-        np.where(state.evader_active, 2 * r, -1.0),
-        r + state.obstacle_r,
-        blank=-1.0,
-    )  # [B, T + 1] m: the centre distance of a contact with each entity column (-1: none)
-    touching = (geometry.distance[:, :num_pursuers] <= contact[:, None, :]) & not_self_columns(0, num_pursuers, contact.shape[1])
-    return state.pursuer_active & touching.any(-1)
+from terl_rt.sim.dynamics import TWO_PI
+from terl_rt.sim.geometry import Geometry, heading
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.perception import perceived_pursuers
+from terl_rt.sim.state import WorldState
 
 
 @dataclass(frozen=True)
@@ -60,7 +46,7 @@ def ring_gaps(bearings: np.ndarray, member: np.ndarray) -> tuple[np.ndarray, np.
 def remember_perceived(state: WorldState, geometry: Geometry, params: WorldParams, present: np.ndarray) -> None:
     """Record in state.pursuer_last_seen whom each present pursuer ([B, N] bool) perceives
     now; a pursuer's row stays as it was from the step it collided on."""
-    seen = perceived_pursuers(geometry, present, params.perception_radius + params.robot_radius)
+    seen = perceived_pursuers(geometry, present, params)
     state.pursuer_last_seen = np.where(present[:, :, None], seen, state.pursuer_last_seen)
 
 

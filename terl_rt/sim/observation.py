@@ -1,7 +1,8 @@
 """Pursuer observations in the layout of the ONNX policy contract (world.md section 5).
 
 Each observation has four token groups plus a mask, in the observer's ego frame:
-ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O].
+ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O];
+the names and feature widths are the contract's (terl_rt.policy.contract).
 """
 
 from __future__ import annotations
@@ -11,8 +12,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.dynamics import as_complex
-from terl_rt.geometry import (
+from terl_rt.policy.contract import EGO_FEATURES, INPUT_NAMES, TEAMMATE_FEATURES
+from terl_rt.sim.dynamics import as_complex
+from terl_rt.sim.geometry import (
     Geometry,
     SlotGroup,
     bearing,
@@ -24,17 +26,10 @@ from terl_rt.geometry import (
     take,
     take_rows,
 )
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.perception import perception_reach
+from terl_rt.sim.state import WorldState
 
-EGO_FEATURES = 4
-"""ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""
-TEAMMATE_FEATURES = 7
-"""teammate token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), pursuit_status]."""
-EVADER_FEATURES = 7
-"""evader token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), heading (rad, [0, 2pi))]."""
-OBSTACLE_FEATURES = 5
-"""obstacle token: [px, py (m), r (m), d (m), bearing (rad)]."""
 TEAMMATE_SLOTS = 5
 """P: teammate slots, nearest perceived active pursuers first."""
 OBSTACLE_SLOTS = 5
@@ -65,14 +60,19 @@ class Observation:
     """[...] int64: the pursuer each row belongs to."""
 
     def as_inputs(self) -> dict[str, np.ndarray]:
-        """The ONNX contract inputs, by name: ego, teammates, evaders, obstacles, mask."""
-        return {
-            "ego": self.ego,
-            "teammates": self.teammates,
-            "evaders": self.evaders,
-            "obstacles": self.obstacles,
-            "mask": self.mask,
-        }
+        """The ONNX contract inputs by name (INPUT_NAMES, the names of their fields here)."""
+        return {name: getattr(self, name) for name in INPUT_NAMES}
+
+    def rows(self, index: np.ndarray) -> Observation:
+        """The rows at flat indices `index` [R] (b * N + n) of observations with leading
+        shape [B, N]: leading shape [R]."""
+        def cut(array: np.ndarray) -> np.ndarray:
+            return array.reshape((-1,) + array.shape[2:])[index]
+
+        return Observation(
+            ego=cut(self.ego), teammates=cut(self.teammates), evaders=cut(self.evaders),
+            obstacles=cut(self.obstacles), mask=cut(self.mask), pursuer_index=cut(self.pursuer_index),
+        )
 
 
 def pursuit_status(geometry: Geometry, related_distance: float) -> np.ndarray:
@@ -131,9 +131,9 @@ def pursuer_observations(
     # Candidates: perceived active teammates other than oneself, active evaders at
     # any distance, perceived obstacles.
     limit = per_entity(
-        np.where(state.pursuer_perceived, params.perception_radius + params.robot_radius, -1.0),
+        np.where(state.pursuer_perceived, perception_reach(params.robot_radius, params), -1.0),
         np.where(state.evader_active, np.inf, -1.0),
-        params.perception_radius + state.obstacle_r,
+        perception_reach(state.obstacle_r, params),
         blank=-1.0,
     )
     key = candidate_key(distance, 0, limit)

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from terl_rt.episode_log import EpisodeLogReader, LoggedEpisode
-from terl_rt.foxglove import COLORS
+from terl_rt.logs.foxglove import COLORS
+from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 
 FORMATS = (".png", ".gif", ".mp4")
 """Output suffixes `render` writes."""

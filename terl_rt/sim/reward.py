@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from terl_rt.encirclement import Encirclement
-from terl_rt.geometry import Geometry, not_self, not_self_columns, per_entity
-from terl_rt.params import WorldParams
+from terl_rt.sim.encirclement import Encirclement
+from terl_rt.sim.geometry import Geometry, not_self, not_self_columns, per_entity
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.perception import perceived
 
 REWARD_TERMS = ("time", "collision", "emergency", "guidance", "cooperation", "boundary", "completion")
 """Names of the reward terms, in the order of the last axis of the reward functions' output."""
@@ -54,15 +55,14 @@ def paper_reward_terms(
     _common_terms(terms, pursuer_xy, collided, p, arena)
 
     # emergency: an active teammate, active evader or perceived obstacle closer than
-    # d_safe; one pass over every entity column with each column's own bound
-    # ("perceived" = within R + r, inclusive: below the next float up).
-    perceived = np.nextafter(p.perception_radius + obstacle_r, np.inf)
+    # d_safe; one pass over every entity column with each column's own bound.
     bound = per_entity(
         np.where(pursuer_active, p.d_safe, 0.0),
         np.where(evader_active, p.d_safe, 0.0),
-        np.minimum(perceived, p.d_safe),
+        np.full(obstacle_r.shape, p.d_safe),
     )  # [B, T + 1] m; 0 never holds (distance < 0)
     near = (geometry.distance[:, :num_pursuers] < bound[:, None, :]) & not_self_columns(0, num_pursuers, bound.shape[1])
+    near[:, :, num_pursuers + geometry.num_evaders : -1] &= perceived(geometry.pursuer_obstacle, obstacle_r[:, None, :], p)
     terms[..., 2] = near.any(-1) * p.reward_emergency
 
     # guidance: summed over active evaders; full within d_encircle (exp(0) = 1).
@@ -148,11 +148,11 @@ def first_perceived_obstacle_distance(geometry: Geometry, obstacle_r: np.ndarray
     (within R + r), inf for none. The published emergency test reads this from the
     observation before the move."""
     distance = geometry.pursuer_obstacle  # [B, N, O]
-    perceived = distance <= params.perception_radius + obstacle_r[:, None, :]
+    seen = perceived(distance, obstacle_r[:, None, :], params)
     if distance.shape[-1] == 0:
         return np.full(distance.shape[:2], np.inf)
-    first = perceived.argmax(-1)[..., None]
-    return np.where(perceived.any(-1), np.take_along_axis(distance, first, -1)[..., 0], np.inf)
+    first = seen.argmax(-1)[..., None]
+    return np.where(seen.any(-1), np.take_along_axis(distance, first, -1)[..., 0], np.inf)
 
 
 def _common_terms(terms: np.ndarray, pursuer_xy: np.ndarray, collided: np.ndarray, p: WorldParams, arena) -> None:

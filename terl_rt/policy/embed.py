@@ -1,15 +1,15 @@
 """Run a policy inside your own controller: from what one robot knows to its next action.
 
 `decide` takes one pursuer's view of the world in world coordinates (m, rad, m/s),
-builds its observation exactly as the simulator does (terl_rt.observation on a
+builds its observation exactly as the simulator does (terl_rt.sim.observation on a
 one-environment world with this robot as pursuer 0) and asks the policy. `observe`
 stops before the policy, for those who run their own model.
 
 Example (hold the returned acceleration and yaw rate for one 0.5 s decision step)::
 
     import numpy as np
-    from terl_rt.embed import decide
-    from terl_rt.policy import OnnxPolicy
+    from terl_rt.policy.embed import decide
+    from terl_rt.policy.onnx_policy import OnnxPolicy
 
     policy = OnnxPolicy("exported/terl.onnx")
     decision = decide(
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.actions import PURSUER_ACTIONS
-from terl_rt.geometry import Geometry
-from terl_rt.observation import Observation, pursuer_observations, pursuit_status
-from terl_rt.params import WorldParams
-from terl_rt.state import WorldState
+from terl_rt.sim.actions import PURSUER_ACTIONS
+from terl_rt.sim.geometry import Geometry
+from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
+from terl_rt.sim.params import WorldParams
+from terl_rt.sim.state import WorldState
 
 
 @dataclass(frozen=True)

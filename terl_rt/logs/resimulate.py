@@ -1,4 +1,5 @@
-"""Replay a logged episode: re-simulate it from its scenario, seed and actions, bit for bit.
+"""Re-simulate a logged episode from its scenario, seed and actions, bit for bit
+(`terl-rt replay --verify`).
 
 The simulator is deterministic (same scenario, seed and actions give the same episode),
 so every /state of a log must come out of the simulator again exactly: float64 fields
@@ -14,9 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.episode_log import STATE_FIELDS, EpisodeLogError, EpisodeLogReader, LoggedStep
-from terl_rt.simulator import Simulator
-from terl_rt.world import WORLD_VERSION
+from terl_rt.logs.format import EpisodeLogError
+from terl_rt.logs.reader import EpisodeLogReader, LoggedStep
+from terl_rt.sim.simulator import Simulator
+from terl_rt.sim.state import LOGGED_FIELDS
+from terl_rt.sim.world import WORLD_VERSION
 
 
 @dataclass(frozen=True)
@@ -85,10 +88,10 @@ def _first_difference(recorded: np.ndarray, simulated: np.ndarray) -> str | None
 
 def _compare_state(step: LoggedStep, simulated: dict[str, np.ndarray]) -> Mismatch | None:
     recorded = step.state
-    for name in STATE_FIELDS:
-        problem = _first_difference(np.asarray(recorded[name]), np.asarray(simulated[name]))
+    for f in LOGGED_FIELDS:
+        problem = _first_difference(np.asarray(recorded[f.key]), np.asarray(simulated[f.key]))
         if problem is not None:
-            return Mismatch(step.step, name, problem)
+            return Mismatch(step.step, f.key, problem)
     return None
 
 

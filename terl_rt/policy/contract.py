@@ -1,4 +1,5 @@
-"""The exported-policy contract, version 1 (policy.md section 3), as small checks.
+"""The exported-policy contract, version 1 (policy.md section 3): the one home of its
+input and output names, feature widths, metadata keys and version, and its checks.
 
 One function per property, in the style of Gymnasium's env checker: each takes the
 part of the model it looks at, returns a one-line description when the property
@@ -7,8 +8,8 @@ not a refusal) with a message that names the problem and its likely cause.
 `check_model` runs them all and collects a `ContractReport`.
 
 The checks read plain descriptions (`TensorInfo`, a metadata dict), so they need
-neither onnx nor an onnxruntime session; `terl_rt.policy.check_contract` builds
-those descriptions from a session.
+neither onnx nor an onnxruntime session; `terl_rt.policy.onnx_policy.check_contract`
+builds those descriptions from a session.
 """
 
 from __future__ import annotations
@@ -19,16 +20,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.observation import (
-    EGO_FEATURES,
-    EVADER_FEATURES,
-    OBSTACLE_FEATURES,
-    TEAMMATE_FEATURES,
-)
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
 
 CONTRACT_VERSION = "1"
 """The contract version this runtime reads."""
+
+EGO_FEATURES = 4
+"""ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""
+TEAMMATE_FEATURES = 7
+"""teammate token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), pursuit_status]."""
+EVADER_FEATURES = 7
+"""evader token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), heading (rad, [0, 2pi))]."""
+OBSTACLE_FEATURES = 5
+"""obstacle token: [px, py (m), r (m), d (m), bearing (rad)]."""
 
 META_CONTRACT = "terl.contract"
 """Metadata key: contract version, "1"."""
@@ -106,6 +110,8 @@ INPUTS = (
     TensorSpec("mask", "bool", ("B", "1+P+E+O")),
 )
 """Contract inputs, in the order of `Observation.as_inputs()`."""
+INPUT_NAMES: tuple[str, ...] = tuple(spec.name for spec in INPUTS)
+"""ego, teammates, evaders, obstacles, mask: the inputs in call order."""
 
 OUTPUTS = (
     TensorSpec("q_values", "float32", ("B", NUM_PURSUER_ACTIONS)),

@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from terl_rt.scenario import Scenario, ScenarioError
+from terl_rt.sim.scenario import Scenario, ScenarioError
 
 _CHUNK = 64
 """candidates drawn per rejection-sampling round."""

@@ -1,6 +1,6 @@
 """Exported ONNX policies: load one, check it against the contract, act with it.
 
-The contract (policy.md section 3) is checked in `terl_rt.contract`; this module
+The contract (policy.md section 3) is checked in `terl_rt.policy.contract`; this module
 opens the file with onnxruntime, refuses models that break the contract, checks
 observations before they reach the model, and runs every row in one call.
 """
@@ -15,12 +15,12 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
 
-from terl_rt.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
-from terl_rt.contract import (
+from terl_rt.policy.contract import (
     INPUTS,
     META_MODEL,
     ContractError,
@@ -28,7 +28,8 @@ from terl_rt.contract import (
     TensorInfo,
     check_model,
 )
-from terl_rt.observation import Observation
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.observation import Observation
 
 __all__ = [
     "ContractError",
@@ -40,6 +41,7 @@ __all__ = [
     "describe_session",
     "observation_inputs",
     "open_session",
+    "policy_info",
     "session_options",
 ]
 
@@ -341,3 +343,9 @@ class OnnxPolicy:
                 f"the contract says float32 {list(shape)}"
             )
         return value
+
+
+def policy_info(policy: OnnxPolicy) -> dict[str, Any]:
+    """What logs and reports keep of a policy: name, sha256, path (str) and metadata
+    (its metadata_props)."""
+    return {"name": policy.name, "sha256": policy.sha256, "path": str(policy.path), "metadata": policy.metadata}

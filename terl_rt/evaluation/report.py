@@ -1,6 +1,6 @@
 """A policy's results set against the TERL paper: docs/results.md and docs/results.png.
 
-`write_report` takes the `ScenarioResult`s of `terl_rt.evaluate.evaluate` and writes a
+`write_report` takes the `ScenarioResult`s of `terl_rt.evaluation.episodes.evaluate_policy` and writes a
 markdown page (the policy, the command, the date; a row per preset beside the paper's
 TERL row for its scale group; a row per scale group; which of the paper's goals are
 met) and a figure in the manner of the paper's Fig. 3 (success rate, travel time and
@@ -20,10 +20,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from terl_rt.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from terl_rt.evaluate import ScenarioResult
-from terl_rt.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
-from terl_rt.scenario import PRESETS
+from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
+from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
+from terl_rt.sim.scenario import PRESETS
 
 MARKDOWN_NAME = "results.md"
 FIGURE_NAME = "results.png"
@@ -101,7 +101,7 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
 
 
 def goal_checks(results: Sequence[ScenarioResult]) -> list[GoalCheck]:
-    """The paper's goals (`terl_rt.paper.GOALS`) for every evaluated scale group: success
+    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated scale group: success
     rate at or above, travel time (s) and collision ratio at or under the bound.
 
     A short travel time counts only with the success goal met: episodes that end
@@ -176,7 +176,7 @@ def render_markdown(
     date: datetime,
     figure_name: str = FIGURE_NAME,
 ) -> str:
-    """The text of results.md. `policy_info` as `terl_rt.episode_log.policy_info` makes
+    """The text of results.md. `policy_info` as `terl_rt.policy.onnx_policy.policy_info` makes
     it: name, sha256, path and metadata (a dict of the ONNX metadata_props)."""
     metadata = policy_info.get("metadata") or {}
     name = policy_info.get("name", "unknown policy")
@@ -380,7 +380,7 @@ def write_report(
     """Write `out_dir`/results.png and `out_dir`/results.md (the folder is made if missing).
 
     results: the evaluations, in the order the tables list them; policy_info: name,
-    sha256, path and metadata, as `terl_rt.episode_log.policy_info` gives them;
+    sha256, path and metadata, as `terl_rt.policy.onnx_policy.policy_info` gives them;
     command: the command line that produced them; date: when (default now, UTC).
     Raises `MatplotlibMissing` before writing anything when matplotlib is absent.
     """

@@ -1,4 +1,5 @@
-"""Benchmarks of the simulator and of policies (timings are reported, never asserted in tests)."""
+"""Speed of the simulator and of policies, `terl-rt bench` (timings are reported, never
+asserted in tests)."""
 
 from __future__ import annotations
 
@@ -8,16 +9,17 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
-from terl_rt.world import World
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import World
 
 SCALING_PURSUERS = (15, 80, 200, 400)
 """Pursuer counts of the scaling table; evaders are a quarter of that."""
 
 
 @dataclass(frozen=True)
-class SimBenchmark:
+class SimulatorSpeed:
     """Speed of World.step with random pursuer actions and the default (APF) evaders."""
 
     scenario: str
@@ -37,23 +39,21 @@ class SimBenchmark:
         return asdict(self)
 
 
-def bench_sim(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimBenchmark:
-    """Time `steps` batch steps (after `warmup` untimed ones); finished episodes restart untimed."""
-    world = World(scenario, num_envs=num_envs, seed=seed)
-    world.reset()
+def simulator_speed(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimulatorSpeed:
+    """Time `steps` batch steps (after `warmup` untimed ones): the scatter of random actions
+    of the active pursuers and World.step; finished episodes restart untimed."""
+    rollout = Rollout(World(scenario, num_envs=num_envs, seed=seed))
     rng = np.random.default_rng(seed)
-    shape = (num_envs, scenario.pursuers)
     elapsed, resets = 0.0, 0
     for k in range(warmup + steps):
-        if world.done.any():
-            resets += int(world.done.sum())
-            world.reset(world.done)
-        actions = rng.integers(0, 9, shape)
+        turn = rollout.turn()
+        resets += len(turn.restarted)
+        chosen = rng.integers(0, NUM_PURSUER_ACTIONS, len(turn.rows))
         start = time.perf_counter()
-        world.step(actions)
+        rollout.step(chosen)
         if k >= warmup:
             elapsed += time.perf_counter() - start
-    return SimBenchmark(
+    return SimulatorSpeed(
         scenario=scenario.name,
         pursuers=scenario.pursuers,
         evaders=scenario.evaders,
@@ -75,7 +75,7 @@ def scaling_scenario(pursuers: int) -> Scenario:
 
 
 @dataclass(frozen=True)
-class PolicyBenchmark:
+class PolicySpeed:
     """Time to choose the actions of all active pursuers: one policy call per step."""
 
     policy: str
@@ -86,7 +86,7 @@ class PolicyBenchmark:
     rows_mean: float
     """mean active pursuers per call (the batch the policy saw)."""
     ms_per_step: float
-    """milliseconds per step: evaluate on every active pursuer, actions scattered to [N]."""
+    """milliseconds per step: the policy's actions for every active pursuer, in one call."""
     ms_p50: float
     ms_p90: float
     us_per_pursuer: float
@@ -98,28 +98,25 @@ class PolicyBenchmark:
         return asdict(self)
 
 
-def bench_policy(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicyBenchmark:
+def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicySpeed:
     """Time `steps` action choices (after `warmup` untimed ones) on real observations:
-    a Simulator driven by the policy itself, restarted untimed when an episode ends."""
-    simulator = Simulator(scenario, seed=seed)
-    observation = simulator.reset()
+    the world of `Simulator(scenario, seed)` driven by the policy itself, restarted
+    untimed when an episode ends."""
+    rollout = Rollout(World(scenario, num_envs=1, seed=seed))
     times, rows, resets = [], [], 0
     for k in range(warmup + steps):
-        if simulator.done:
-            observation = simulator.reset()
-            resets += 1
+        turn = rollout.turn()
+        resets += len(turn.restarted)
         start = time.perf_counter()
-        output = policy.evaluate(observation)
-        actions = np.zeros(scenario.pursuers, np.int64)
-        actions[observation.pursuer_index] = output.actions
+        actions = policy.act(turn.observation.rows(turn.rows))
         elapsed = time.perf_counter() - start
         if k >= warmup:
             times.append(elapsed)
-            rows.append(len(observation.pursuer_index))
-        observation, _ = simulator.step(actions)
+            rows.append(len(turn.rows))
+        rollout.step(actions)
     ms = 1e3 * np.array(times)
     rows_mean = float(np.mean(rows))
-    return PolicyBenchmark(
+    return PolicySpeed(
         policy=policy.name,
         scenario=scenario.name,
         pursuers=scenario.pursuers,

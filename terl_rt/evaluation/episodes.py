@@ -2,8 +2,8 @@
 
 Episode k of an evaluation with seed s runs `Simulator(scenario, seed=s + k)`, so any
 episode can be run again alone. Each step the policy sees every active pursuer's
-observation in one call; its greedy actions are scattered to the [N] action vector by
-`Observation.pursuer_index` (collided pursuers get 0, which the simulator ignores).
+observation in one call; `terl_rt.sim.rollout.Rollout` scatters its greedy actions to
+the [N] action vector (collided pursuers get 0, which the simulator ignores).
 With `workers > 1` the episodes are spread over processes (spawn), each reopening the
 policy file; results (and logs) are the same as with one process, in episode order.
 """
@@ -13,53 +13,24 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
-import numpy as np
-
-from terl_rt.episode_log import EpisodeLogWriter, StepRecord, policy_info
-from terl_rt.metrics import EpisodeMetrics
-from terl_rt.policy import ContractError, OnnxPolicy
-from terl_rt.scenario import Scenario
-from terl_rt.simulator import Simulator
+from terl_rt.logs.format import StepRecord
+from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, policy_info
+from terl_rt.sim.metrics import EpisodeMetrics, summarize
+from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.simulator import StepInfo
+from terl_rt.sim.state import snapshot
+from terl_rt.sim.world import World
 
 Progress = Callable[[int, EpisodeMetrics], None]
 """Called after each finished episode with its index and metrics (in episode order)."""
-
-
-@dataclass(frozen=True)
-class Summary:
-    """Means over the episodes of a scenario."""
-
-    success_rate: float
-    """fraction of episodes with every evader encircled."""
-    travel_time_s_mean: float
-    """s: mean episode duration (steps x 0.5 s)."""
-    travel_time_s_std: float
-    """s: population standard deviation of the duration."""
-    collision_ratio_mean: float
-    """mean of collided pursuers / pursuers."""
-    steps_mean: float
-    """mean decision steps per episode."""
-
-
-def summarize(per_episode: Sequence[EpisodeMetrics]) -> Summary:
-    """Means (and the travel time's spread) over episodes; NaN for no episodes."""
-    if not per_episode:
-        nan = float("nan")
-        return Summary(nan, nan, nan, nan, nan)
-    travel = np.array([m.travel_time_s for m in per_episode])
-    return Summary(
-        success_rate=float(np.mean([m.success for m in per_episode])),
-        travel_time_s_mean=float(travel.mean()),
-        travel_time_s_std=float(travel.std()),
-        collision_ratio_mean=float(np.mean([m.collision_ratio for m in per_episode])),
-        steps_mean=float(np.mean([m.steps for m in per_episode])),
-    )
 
 
 @dataclass(frozen=True)
@@ -105,28 +76,26 @@ def run_episode(
     seed: int,
     on_step: Callable[[StepRecord], None] | None = None,
 ) -> EpisodeMetrics:
-    """Run one episode of `Simulator(scenario, seed)` with the policy's greedy actions.
+    """Run one episode of `Simulator(scenario, seed)` with the policy's greedy actions
+    (its world: environment 0 of `World(scenario, 1, seed)`).
 
     `on_step` receives a StepRecord for the state after reset (step 0) and after each step.
     """
-    simulator = Simulator(scenario, seed=seed)
-    observation = simulator.reset()
+    world = World(scenario, num_envs=1, seed=seed)
+    rollout = Rollout(world)
     if on_step is not None:
-        on_step(StepRecord(step=0, state=simulator.state()))
-    step = 0
-    while not simulator.done:
-        output = policy.evaluate(observation)
-        actions = np.zeros(scenario.pursuers, np.int64)
-        actions[observation.pursuer_index] = output.actions
-        decided = observation.pursuer_index
-        observation, info = simulator.step(actions)
-        step += 1
+        on_step(StepRecord(step=0, state=snapshot(world.state, 0)))
+    while True:
+        turn = rollout.turn()
+        output = policy.evaluate(turn.observation.rows(turn.rows))
+        step = rollout.step(output.actions)
         if on_step is not None:
             on_step(StepRecord(
-                step=step, state=simulator.state(), pursuer_actions=actions, decided=decided,
-                target_weights=output.target_weights, info=info,
+                step=int(world.state.steps[0]), state=snapshot(world.state, 0), pursuer_actions=step.actions[0],
+                decided=turn.rows, target_weights=output.target_weights, info=StepInfo.of(step.result),
             ))
-    return simulator.metrics()
+        if step.outcomes:
+            return step.outcomes[0]
 
 
 # --- worker processes ------------------------------------------------------------------
@@ -166,7 +135,7 @@ def _worker_episode(scenario: Scenario, seed: int, record: bool) -> tuple[Episod
 # --- evaluation ---------------------------------------------------------------------
 
 
-def evaluate(
+def evaluate_policy(
     policy: OnnxPolicy | str | os.PathLike,
     scenario: Scenario,
     episodes: int,
@@ -181,7 +150,7 @@ def evaluate(
 
     max_steps overrides the scenario's step limit. workers > 1 runs episodes in that many
     spawned processes. threads: onnxruntime intra-op threads of a policy given as a path
-    and of each worker's policy (workers default to 1). log_path: an MCAP file to write every step to (see terl_rt.episode_log),
+    and of each worker's policy (workers default to 1). log_path: an MCAP file to write every step to (see terl_rt.logs.format),
     or an open EpisodeLogWriter to append to (the caller closes it). Episodes are logged
     and reported to `progress` in episode order as they finish.
     """

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from terl_rt.actions import EVADER_ACCELERATIONS, PURSUER_ACCELERATIONS
+from terl_rt.sim.actions import EVADER_ACCELERATIONS, PURSUER_ACCELERATIONS
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.dynamics import as_complex
-from terl_rt.state import WorldState
+from terl_rt.sim.dynamics import as_complex
+from terl_rt.sim.state import WorldState
 
 
 @dataclass(frozen=True)
@@ -174,8 +174,8 @@ def candidate_key(distance: np.ndarray, first_row: int, limit: np.ndarray) -> np
     """Distances of the candidates, inf for the others: the key of `nearest_slots`.
 
     distance [B, X, T + 1] m from the robots of rows first_row .. first_row + X - 1;
-    limit [B, T + 1] m: the largest distance at which each entity is a candidate
-    (negative: never; give the blank -1). A robot is never its own candidate.
+    limit [B, T + 1] m: the largest distance at which each entity is a candidate,
+    inclusive (negative: never; give the blank -1). A robot is never its own candidate.
     """
     candidate = (distance <= limit[:, None, :]) & not_self_columns(first_row, distance.shape[1], distance.shape[2])
     return np.where(candidate, distance, np.inf)
@@ -196,17 +196,6 @@ def take_rows(values: np.ndarray, columns: np.ndarray) -> np.ndarray:
     """Per-row gather: values [B, X, T + 1] by columns [B, X, S] -> [B, X, S]."""
     env, row = _grid(*values.shape[:2])
     return values[env, row, columns]
-
-
-def perceived_pursuers(geometry: Geometry, present: np.ndarray, perception_reach: float) -> np.ndarray:
-    """[B, N, N] bool: [b, i, j] when pursuers i and j are both present ([B, N] bool),
-    i != j and their centres lie within `perception_reach` (R + r, m) of each other."""
-    num_pursuers = present.shape[1]
-    return (
-        (geometry.pursuer_pursuer <= perception_reach)
-        & present[:, None, :] & present[:, :, None]
-        & not_self(num_pursuers)
-    )
 
 
 @lru_cache(maxsize=64)

@@ -1,0 +1,116 @@
+"""The MCAP episode log format: layout, topics, message schemas, versions.
+
+Layout of a log (MCAP, one zstd chunk per step):
+
+    Header
+    Metadata "terl.log"           format version, policy name, sha256, path and metadata
+    per episode, in order:
+      Metadata "terl.episode"     file-order number, run index, seed, scenario JSON
+      Chunk step 0                the state after reset: /world, /state
+      Chunk step t = 1, 2, ...    /world, /actions, /target_weights, /rewards, [/events], /state
+      Metadata "terl.episode_end" final metrics (missing when the run was interrupted)
+    DataEnd, summary (schemas, channels, statistics, indexes), Footer, magic
+
+Topics (JSON messages; log time = episode start + step * 0.5 s, in ns):
+
+- `/world`: foxglove.SceneUpdate (terl_rt.logs.foxglove), the whole scene of the step;
+- `/state`: the world's public state (`terl_rt.sim.state.LOGGED_FIELDS`: `Simulator.state()`
+  less the derived `pursuer_collided`), floats written with Python's repr, so they read
+  back exactly;
+- `/actions`: the [N] pursuer action indices fed to the simulator for this step
+  (0 for collided pursuers), which pursuers decided, and the [M] evader actions;
+- `/target_weights`: [n, E] target weights of the n deciding pursuers (policies with
+  target selection only);
+- `/rewards`: [N] rewards and their terms;
+- `/events`: captures, collisions and the episode's end, in steps that have any.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from terl_rt.logs.foxglove import SCENE_UPDATE, SCENE_UPDATE_SCHEMA
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.simulator import StepInfo
+from terl_rt.sim.state import LOGGED_FIELDS
+
+LOG_FORMAT = "terl-rt episode log"
+LOG_VERSION = "1"
+"""Version of the layout above; readers refuse other versions."""
+
+META_LOG = "terl.log"
+META_EPISODE = "terl.episode"
+META_EPISODE_END = "terl.episode_end"
+
+TOPIC_WORLD = "/world"
+TOPIC_STATE = "/state"
+TOPIC_ACTIONS = "/actions"
+TOPIC_TARGET_WEIGHTS = "/target_weights"
+TOPIC_REWARDS = "/rewards"
+TOPIC_EVENTS = "/events"
+
+
+class EpisodeLogError(ValueError):
+    """A file that is not a readable episode log; the message names the file and the problem."""
+
+
+def encode(payload: Any) -> bytes:
+    """A message or schema as compact JSON bytes."""
+    return json.dumps(payload, separators=(",", ":")).encode()
+
+
+def _object_schema(title: str, description: str, properties: Mapping[str, Any]) -> bytes:
+    return encode({"title": title, "description": description, "type": "object", "properties": dict(properties)})
+
+
+_NUMBERS = {"type": "array", "items": {"type": "number"}}
+_INTEGERS = {"type": "array", "items": {"type": "integer"}}
+_HEAD = {"episode": {"type": "integer"}, "step": {"type": "integer"}}
+SCHEMAS: dict[str, tuple[str, bytes]] = {
+    TOPIC_WORLD: (SCENE_UPDATE, encode(SCENE_UPDATE_SCHEMA)),
+    TOPIC_STATE: ("terl.State", _object_schema(
+        "terl.State", "Full world state after the step (m, rad, m/s); floats are exact float64 reprs",
+        {**_HEAD, **{f.key: {"type": "array"} for f in LOGGED_FIELDS if f.key not in _HEAD}},
+    )),
+    TOPIC_ACTIONS: ("terl.Actions", _object_schema(
+        "terl.Actions", "Actions of the step: pursuer [N] as fed to the simulator, evader [M]",
+        {**_HEAD, "pursuer": _INTEGERS, "decided": _INTEGERS, "evader": _INTEGERS},
+    )),
+    TOPIC_TARGET_WEIGHTS: ("terl.TargetWeights", _object_schema(
+        "terl.TargetWeights", "Target weights [n, E] of the pursuers that decided the step",
+        {**_HEAD, "pursuer": _INTEGERS, "weights": {"type": "array", "items": _NUMBERS}},
+    )),
+    TOPIC_REWARDS: ("terl.Rewards", _object_schema(
+        "terl.Rewards", "Reward [N] of each pursuer in the step and its terms",
+        {**_HEAD, "total": _NUMBERS, "terms": {"type": "object", "properties": {t: _NUMBERS for t in REWARD_TERMS}}},
+    )),
+    TOPIC_EVENTS: ("terl.Events", _object_schema(
+        "terl.Events", "Captures, collisions and the episode end in the step",
+        {**_HEAD, "events": {"type": "array", "items": {"type": "object"}}},
+    )),
+}
+"""topic -> (schema name, JSON Schema bytes) of every channel of a log."""
+TOPICS: tuple[str, ...] = tuple(SCHEMAS)
+"""Every topic of a log."""
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What the log keeps of one step; step 0 is the state after reset (no actions)."""
+
+    step: int
+    state: dict[str, np.ndarray]
+    """`Simulator.state()` after the step."""
+    pursuer_actions: np.ndarray | None = None
+    """[N] int64 fed to `Simulator.step` (None at step 0)."""
+    decided: np.ndarray | None = None
+    """[n] int64: pursuers that chose an action (the active ones)."""
+    target_weights: np.ndarray | None = None
+    """[n, E] float32 of the deciding pursuers, or None."""
+    info: StepInfo | None = None
+    """What the step did (None at step 0)."""

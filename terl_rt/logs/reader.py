@@ -1,0 +1,345 @@
+"""Reading episode logs (terl_rt.logs.format), complete or cut off.
+
+The reader scans the file record by record; a file that stops inside a record, or
+without its footer, reads back up to the last complete step and says so
+(`EpisodeLogReader.problem`). Anything else that does not parse is an
+`EpisodeLogError` naming the byte offset and, where known, the episode and step.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk
+
+from terl_rt.logs.format import (
+    LOG_FORMAT,
+    LOG_VERSION,
+    META_EPISODE,
+    META_EPISODE_END,
+    META_LOG,
+    TOPIC_ACTIONS,
+    TOPIC_EVENTS,
+    TOPIC_STATE,
+    EpisodeLogError,
+)
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.scenario import Scenario, ScenarioError
+from terl_rt.sim.state import LOGGED_FIELDS
+
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")
+
+
+@dataclass(frozen=True)
+class LoggedEpisode:
+    """One episode of a log, as listed by `EpisodeLogReader.episodes`."""
+
+    number: int
+    """position in the file, 0-based (what `--episode` selects)."""
+    index: int
+    """episode index in its evaluation run (episode k ran with seed run_seed + k)."""
+    seed: int
+    """the Simulator seed of this episode."""
+    scenario: Scenario
+    steps: int
+    """decision steps on disk (complete steps after the reset frame)."""
+    metrics: EpisodeMetrics | None
+    """final metrics; None when the episode was cut off before its end."""
+    chunks: tuple[tuple[int, int], ...] = field(repr=False, default=())
+    """(byte offset, record length) of each complete step chunk, step 0 first."""
+
+    @property
+    def complete(self) -> bool:
+        return self.metrics is not None
+
+
+class LoggedStep:
+    """One step of a logged episode: the raw JSON of each topic, decoded on demand."""
+
+    def __init__(self, episode: int, step: int, time_ns: int, messages: dict[str, bytes]):
+        self.episode = episode
+        self.step = step
+        self.time_ns = time_ns
+        """log time of the step's messages (ns)."""
+        self.messages = messages
+        """topic -> JSON bytes, for the topics present in this step."""
+
+    def __repr__(self) -> str:
+        return f"LoggedStep(episode={self.episode}, step={self.step}, topics={sorted(self.messages)})"
+
+    def payload(self, topic: str) -> dict | None:
+        """The decoded message of `topic`, or None when the step has none."""
+        data = self.messages.get(topic)
+        return None if data is None else json.loads(data)
+
+    @property
+    def state(self) -> dict[str, np.ndarray]:
+        """The world state after the step, as `Simulator.state()` (float64, bool, int64)."""
+        payload = self.payload(TOPIC_STATE)
+        out: dict[str, np.ndarray] = {}
+        try:
+            for f in LOGGED_FIELDS:
+                value = np.asarray(payload[f.key], dtype=f.dtype)
+                out[f.key] = value.reshape(-1, 2) if f.pairs else value
+        except (KeyError, TypeError, ValueError) as error:
+            raise EpisodeLogError(
+                f"the /state message of episode {self.episode} step {self.step} is malformed ({error!r})"
+            ) from None
+        return out
+
+    @property
+    def pursuer_actions(self) -> np.ndarray | None:
+        """[N] int64 fed to the simulator in this step (None at step 0)."""
+        payload = self.payload(TOPIC_ACTIONS)
+        return None if payload is None else np.asarray(payload["pursuer"], np.int64)
+
+    @property
+    def evader_actions(self) -> np.ndarray | None:
+        """[M] int64 the evaders took in this step (None at step 0)."""
+        payload = self.payload(TOPIC_ACTIONS)
+        return None if payload is None else np.asarray(payload["evader"], np.int64)
+
+    @property
+    def events(self) -> list[dict]:
+        payload = self.payload(TOPIC_EVENTS)
+        return [] if payload is None else payload["events"]
+
+
+class EpisodeLogReader:
+    """Reads an episode log written by `EpisodeLogWriter`, complete or cut off.
+
+    Raises EpisodeLogError for a file that is missing, not MCAP, not an episode log,
+    or corrupt. A file cut off mid-write reads back up to its last complete step:
+    then `truncated` is True and `problem` says what was lost.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(2, "no episode log at this path", str(self.path))
+        if self.path.is_dir():
+            raise EpisodeLogError(f"{self.path}: is a directory, not an episode log")
+        self.size = self.path.stat().st_size
+        self.policy: dict[str, Any] = {}
+        """The policy the episodes ran: name, sha256, path, metadata."""
+        self.world_version = "1"
+        """terl_rt.sim.world.WORLD_VERSION of the simulator that wrote the log (logs before versions: "1")."""
+        self.truncated = False
+        """True when the file stops before its footer (cut off, or its writer never closed)."""
+        self.problem: str | None = None
+        """What is wrong with a truncated file, in one sentence; None for a whole file."""
+        self.channels: dict[int, Channel] = {}
+        self.schemas: dict[int, Schema] = {}
+        self._scanned: list[dict] = []
+        with open(self.path, "rb") as handle:
+            self._scan(handle)
+        self._episodes = tuple(
+            LoggedEpisode(
+                number=raw["number"], index=raw["index"], seed=raw["seed"], scenario=raw["scenario"],
+                steps=max(len(raw["chunks"]) - 1, 0), metrics=raw["metrics"], chunks=tuple(raw["chunks"]),
+            )
+            for raw in self._scanned
+        )
+
+    # --- listing
+    @property
+    def episodes(self) -> list[LoggedEpisode]:
+        """Every episode in file order (the last one may be incomplete)."""
+        return list(self._episodes)
+
+    def episode(self, number: int) -> LoggedEpisode:
+        """The episode at file position `number`; EpisodeLogError when there is none."""
+        if not 0 <= number < len(self._episodes):
+            held = f"episodes 0-{len(self._episodes) - 1}" if self._episodes else "no episode"
+            raise EpisodeLogError(f"{self.path}: no episode {number}; the log holds {held}")
+        return self._episodes[number]
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """topic -> schema name, for every channel of the log."""
+        return {
+            channel.topic: self.schemas[channel.schema_id].name if channel.schema_id in self.schemas else ""
+            for channel in self.channels.values()
+        }
+
+    def message_counts(self) -> dict[str, int]:
+        """topic -> messages on disk in complete steps (decodes every chunk)."""
+        counts = {channel.topic: 0 for channel in self.channels.values()}
+        for episode in self._episodes:
+            for step in self.steps(episode.number):
+                for topic in step.messages:
+                    counts[topic] += 1
+        return counts
+
+    # --- steps
+    def steps(self, number: int) -> Iterator[LoggedStep]:
+        """The steps of episode `number` in order, step 0 (after reset) first."""
+        episode = self.episode(number)
+        with open(self.path, "rb") as handle:
+            for expected, (offset, length) in enumerate(episode.chunks):
+                step = self._read_step(handle, offset, length, f"episode {number}, step {expected}")
+                if step.episode != number or step.step != expected:
+                    raise EpisodeLogError(
+                        f"{self.path}: chunk at byte {offset} holds episode {step.episode} step {step.step}, "
+                        f"expected episode {number} step {expected}; the file is corrupt"
+                    )
+                yield step
+
+    # --- internals
+    def _fail(self, message: str) -> EpisodeLogError:
+        return EpisodeLogError(f"{self.path}: {message}")
+
+    def _cut(self, what: str) -> None:
+        self.truncated = True
+        if not self._scanned:
+            kept = "no episode had begun"
+        else:
+            last = self._scanned[-1]
+            if last["chunks"]:
+                kept = f"the last complete step is episode {last['number']} step {len(last['chunks']) - 1}"
+            else:
+                kept = f"episode {last['number']} has no complete step"
+        self.problem = f"the file was cut off ({what}); {kept}"
+
+    def _scan(self, handle) -> None:
+        head = handle.read(len(_MAGIC))
+        if len(head) == 0:
+            raise self._fail("the file is empty, not an episode log")
+        if head != _MAGIC[: len(head)]:
+            raise self._fail("not an MCAP file (it does not start with the MCAP magic bytes)")
+        if len(head) < len(_MAGIC):
+            raise self._fail(f"the file was cut off inside the MCAP magic ({self.size} bytes); nothing to read")
+        offset = len(_MAGIC)
+        first = True
+        while True:
+            if offset == self.size:
+                self._cut("it ends after a whole record but without the MCAP footer: its writer was never closed")
+                break
+            record_head = handle.read(_RECORD_HEAD.size)
+            if len(record_head) < _RECORD_HEAD.size:
+                self._cut(f"{self.size} bytes, inside the header of a record that starts at byte {offset}")
+                break
+            opcode, length = _RECORD_HEAD.unpack(record_head)
+            body_start = offset + _RECORD_HEAD.size
+            try:
+                kind = Opcode(opcode)
+            except ValueError:
+                raise self._fail(f"corrupt record at byte {offset}: unknown record type 0x{opcode:02x}") from None
+            if first and kind != Opcode.HEADER:
+                raise self._fail(f"corrupt file: the first record is {kind.name}, not the MCAP header")
+            first = False
+            if body_start + length > self.size:
+                self._cut(f"{self.size} bytes, inside a {kind.name.lower()} record that starts at byte {offset} and needs {length}")
+                break
+            if kind == Opcode.CHUNK:
+                self._on_chunk(handle, offset, length)
+                handle.seek(body_start + length)
+            elif kind in (Opcode.METADATA, Opcode.FOOTER):
+                body = handle.read(length)
+                if kind == Opcode.FOOTER:
+                    if handle.read(len(_MAGIC)) != _MAGIC:
+                        self._cut("inside the closing MCAP magic, after every step")
+                    break
+                self._on_metadata(offset, body)
+            else:
+                handle.seek(length, io.SEEK_CUR)
+            offset = body_start + length
+        if not self.policy:
+            if self.truncated:
+                raise self._fail(f"{self.problem}: nothing of the log is readable")
+            raise self._fail("an MCAP file but not a terl-rt episode log (no 'terl.log' metadata record)")
+
+    def _on_metadata(self, offset: int, body: bytes) -> None:
+        try:
+            record = Metadata.read(ReadDataStream(io.BytesIO(body)))
+        except Exception as error:  # any parse failure of a complete record is corruption
+            raise self._fail(f"corrupt metadata record at byte {offset}: {error!r}") from None
+        data = record.metadata
+        try:
+            if record.name == META_LOG:
+                if data.get("format") != LOG_FORMAT:
+                    raise self._fail(f"metadata 'terl.log' has format {data.get('format')!r}, expected {LOG_FORMAT!r}")
+                if data.get("version") != LOG_VERSION:
+                    raise self._fail(
+                        f"episode log version {data.get('version')!r}; this terl-rt reads version {LOG_VERSION}"
+                    )
+                self.world_version = data.get("world", "1")
+                self.policy = {
+                    "name": data["policy"], "sha256": data["policy_sha256"], "path": data.get("policy_path", ""),
+                    "metadata": json.loads(data.get("policy_metadata", "{}")),
+                }
+            elif record.name == META_EPISODE:
+                number = int(data["episode"])
+                if number != len(self._scanned):
+                    raise self._fail(f"episode records out of order at byte {offset}: episode {number} follows {len(self._scanned) - 1}")
+                self._scanned.append({
+                    "number": number, "index": int(data["index"]), "seed": int(data["seed"]),
+                    "scenario": Scenario.from_dict(json.loads(data["scenario"])),
+                    "metrics": None, "chunks": [],
+                })
+            elif record.name == META_EPISODE_END:
+                number = int(data["episode"])
+                if not self._scanned or self._scanned[-1]["number"] != number:
+                    raise self._fail(f"end of episode {number} at byte {offset} without its start")
+                self._scanned[-1]["metrics"] = EpisodeMetrics(**json.loads(data["metrics"]))
+        except EpisodeLogError:
+            raise
+        except (KeyError, ValueError, TypeError, ScenarioError) as error:
+            raise self._fail(f"corrupt {record.name!r} metadata record at byte {offset}: {error}") from None
+
+    def _on_chunk(self, handle, offset: int, length: int) -> None:
+        if not self.policy:
+            raise self._fail(f"a chunk at byte {offset} precedes the 'terl.log' metadata; not an episode log")
+        if not self._scanned:
+            raise self._fail(f"a chunk at byte {offset} precedes the first episode record")
+        if not self.channels:
+            # The writer registers every schema and channel before the first step: they
+            # ride in the first chunk of the file.
+            for record in self._chunk_records(handle, offset, length, "step 0 of episode 0"):
+                if isinstance(record, Schema):
+                    self.schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    self.channels[record.id] = record
+        self._scanned[-1]["chunks"].append((offset, length))
+
+    def _chunk_records(self, handle, offset: int, length: int, what: str) -> list:
+        handle.seek(offset + _RECORD_HEAD.size)
+        body = handle.read(length)
+        try:
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+            return breakup_chunk(chunk, validate_crc=True)
+        except Exception as error:  # zstd, CRC and struct errors all mean a damaged chunk
+            raise self._fail(f"corrupt chunk at byte {offset} ({what}): {error}") from None
+
+    def _read_step(self, handle, offset: int, length: int, what: str) -> LoggedStep:
+        messages: dict[str, bytes] = {}
+        head: dict | None = None
+        time_ns = 0
+        for record in self._chunk_records(handle, offset, length, what):
+            if not isinstance(record, Message):
+                continue
+            channel = self.channels.get(record.channel_id)
+            if channel is None:
+                raise self._fail(f"corrupt chunk at byte {offset} ({what}): message on unknown channel {record.channel_id}")
+            messages[channel.topic] = record.data
+            time_ns = record.log_time
+            if channel.topic == TOPIC_STATE:
+                try:
+                    head = json.loads(record.data)
+                except ValueError as error:
+                    raise self._fail(f"corrupt /state message in the chunk at byte {offset} ({what}): {error}") from None
+        if head is None:
+            raise self._fail(f"corrupt chunk at byte {offset} ({what}): it has no /state message")
+        return LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages)

@@ -1,0 +1,275 @@
+"""Writing episode logs (terl_rt.logs.format) as episodes run.
+
+The writer flushes after every step, and a step lives in one chunk, so everything up
+to the last complete step is on disk whatever happens next (Ctrl-C, a crash, a kill).
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import signal
+import threading
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from terl_rt.logs.format import (
+    LOG_FORMAT,
+    LOG_VERSION,
+    META_EPISODE,
+    META_EPISODE_END,
+    META_LOG,
+    SCHEMAS,
+    TOPIC_ACTIONS,
+    TOPIC_EVENTS,
+    TOPIC_REWARDS,
+    TOPIC_STATE,
+    TOPIC_TARGET_WEIGHTS,
+    TOPIC_WORLD,
+    StepRecord,
+    encode,
+)
+from terl_rt.logs.foxglove import scene_update
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.state import LOGGED_FIELDS
+from terl_rt.sim.world import WORLD_VERSION
+
+_GAP_NS = 1_000_000_000
+"""Log time left between the last step of an episode and the next episode's start."""
+_NO_CHUNK_LIMIT = 1 << 40
+"""Chunk size the writer never reaches: chunks end only where a step ends."""
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("terl-rt")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold back Ctrl-C (SIGINT) inside the block and deliver it at its end (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received and previous is not signal.SIG_IGN:
+            if callable(previous):
+                previous(signal.SIGINT, None)
+            else:
+                raise KeyboardInterrupt
+
+
+@dataclass
+class _OpenEpisode:
+    number: int
+    scenario: Scenario
+    offset_ns: int
+    step_ns: int
+    last_ns: int
+
+
+def _events(record: StepRecord) -> list[dict]:
+    info = record.info
+    events: list[dict] = []
+    for j in np.flatnonzero(info.captured).tolist():
+        events.append({"type": "capture", "evader": j, "pursuers": np.flatnonzero(info.pursuer_target == j).tolist()})
+    for i in np.flatnonzero(info.collided).tolist():
+        events.append({"type": "collision", "pursuer": i})
+    if info.terminated or info.truncated:
+        success = not bool(record.state["evader_active"].any())
+        events.append({
+            "type": "episode_end", "success": success,
+            "terminated": info.terminated, "truncated": info.truncated,
+        })
+    return events
+
+
+def _state_payload(number: int, state: Mapping[str, np.ndarray]) -> dict:
+    payload: dict[str, Any] = {"episode": number}
+    for f in LOGGED_FIELDS:
+        payload[f.key] = np.asarray(state[f.key]).tolist()
+    return payload
+
+
+class EpisodeLogWriter:
+    """Writes episodes to an MCAP log at `path` (replaced if it exists).
+
+    policy_info: `policy_info(policy)`, or a mapping with at least name and sha256.
+    Call `begin_episode`, then `write_step` for step 0 (after reset) and every step,
+    then `end_episode`; `close()` (or a `with` block) writes the summary. Each step is
+    on disk when `write_step` returns.
+    """
+
+    def __init__(self, path: str | os.PathLike, policy_info: Mapping[str, Any]):
+        for key in ("name", "sha256"):
+            if key not in policy_info:
+                raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.policy.onnx_policy.policy_info(policy)")
+        self.path = Path(path)
+        self._file = open(self.path, "wb")
+        self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
+        self._mcap.start(profile="", library=f"terl-rt {_version()}")
+        self._channels: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}
+        for topic, (name, schema) in SCHEMAS.items():
+            schema_id = self._mcap.register_schema(name=name, encoding="jsonschema", data=schema)
+            self._channels[topic] = self._mcap.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+            self._sequence[topic] = 0
+        self._policy = {"policy": str(policy_info["name"]), "policy_sha256": str(policy_info["sha256"])}
+        self._mcap.add_metadata(META_LOG, {
+            "format": LOG_FORMAT,
+            "version": LOG_VERSION,
+            "world": WORLD_VERSION,
+            "terl_rt": _version(),
+            **self._policy,
+            "policy_path": str(policy_info.get("path", "")),
+            "policy_metadata": json.dumps(dict(policy_info.get("metadata", {}))),
+        })
+        self._mcap.flush()
+        self._episode: _OpenEpisode | None = None
+        self._episodes = 0
+        self._next_offset_ns = 0
+        self._step_pending = False
+        self._closed = False
+
+    def __enter__(self) -> EpisodeLogWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def episodes_written(self) -> int:
+        """Episodes begun so far (their file-order numbers are 0 .. episodes_written - 1)."""
+        return self._episodes
+
+    def begin_episode(self, scenario: Scenario, seed: int, index: int) -> int:
+        """Start an episode of `scenario` run as `Simulator(scenario, seed=seed)`, number
+        `index` in its evaluation. Returns its number in the file."""
+        self._check_open()
+        if self._episode is not None:
+            raise RuntimeError(f"begin_episode: episode {self._episode.number} has not ended")
+        number = self._episodes
+        self._episodes += 1
+        params = scenario.params
+        step_ns = int(round(params.dt * params.substeps * 1e9))
+        self._episode = _OpenEpisode(number, scenario, self._next_offset_ns, step_ns, self._next_offset_ns)
+        self._mcap.add_metadata(META_EPISODE, {
+            "episode": str(number),
+            "index": str(int(index)),
+            "seed": str(int(seed)),
+            "scenario": json.dumps(scenario.to_dict()),
+            "start_time_ns": str(self._next_offset_ns),
+            **self._policy,
+        })
+        self._mcap.flush()
+        return number
+
+    def write_step(self, record: StepRecord) -> None:
+        """Write one step as one chunk and flush it to the file."""
+        self._check_open()
+        episode = self._episode
+        if episode is None:
+            raise RuntimeError("write_step: call begin_episode first")
+        time_ns = episode.offset_ns + record.step * episode.step_ns
+        episode.last_ns = time_ns
+        head = {"episode": episode.number, "step": record.step}
+        state = record.state
+        params = episode.scenario.params
+        status = (
+            f"{episode.scenario.name}  episode {episode.number}  step {record.step}  "
+            f"t={record.step * episode.step_ns / 1e9:g} s  "
+            f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
+            f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"
+        )
+        messages = [(TOPIC_WORLD, scene_update(
+            state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
+        ))]
+        info = record.info
+        if info is not None:
+            messages.append((TOPIC_ACTIONS, {
+                **head,
+                "pursuer": np.asarray(record.pursuer_actions).tolist(),
+                "decided": np.asarray(record.decided).tolist(),
+                "evader": info.evader_actions.tolist(),
+            }))
+            if record.target_weights is not None:
+                messages.append((TOPIC_TARGET_WEIGHTS, {
+                    **head,
+                    "pursuer": np.asarray(record.decided).tolist(),
+                    "weights": np.asarray(record.target_weights).tolist(),
+                }))
+            messages.append((TOPIC_REWARDS, {
+                **head,
+                "total": info.reward.tolist(),
+                "terms": {name: values.tolist() for name, values in info.reward_terms.items()},
+            }))
+            events = _events(record)
+            if events:
+                messages.append((TOPIC_EVENTS, {**head, "events": events}))
+        # /state last: its presence marks the step as complete for readers of other tools.
+        messages.append((TOPIC_STATE, _state_payload(episode.number, state)))
+        encoded = [(topic, encode(payload)) for topic, payload in messages]
+
+        # From the first message to the flush the step is half in the chunk buffer: Ctrl-C
+        # waits until the step is on disk, and any other interruption keeps close() from
+        # writing the half step out.
+        with _sigint_deferred():
+            self._step_pending = True
+            for topic, data in encoded:
+                self._mcap.add_message(
+                    channel_id=self._channels[topic], log_time=time_ns, publish_time=time_ns,
+                    data=data, sequence=self._sequence[topic],
+                )
+                self._sequence[topic] += 1
+            self._mcap.flush()
+            self._step_pending = False
+
+    def end_episode(self, metrics: EpisodeMetrics) -> None:
+        """Close the current episode with its final metrics."""
+        self._check_open()
+        episode = self._episode
+        if episode is None:
+            raise RuntimeError("end_episode: no episode is open")
+        self._mcap.add_metadata(META_EPISODE_END, {
+            "episode": str(episode.number),
+            "steps": str(metrics.steps),
+            "metrics": json.dumps(metrics.to_dict()),
+        })
+        self._mcap.flush()
+        self._next_offset_ns = episode.last_ns + _GAP_NS
+        self._episode = None
+
+    def close(self) -> None:
+        """Write the summary and footer and close the file (an open episode stays unended).
+
+        After a step interrupted half-way (Ctrl-C inside `write_step`) the summary is left
+        out, so that half step never reaches the file: readers then stop at the last
+        complete step and report the file as cut off.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if not self._step_pending:
+                self._mcap.finish()
+        finally:
+            self._file.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"{self.path}: the log writer is closed")

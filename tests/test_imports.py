@@ -1,0 +1,32 @@
+"""What importing a part of terl_rt loads: the simulator needs NumPy alone."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+HEAVY = ("mcap", "onnxruntime", "torch")
+"""Packages the simulator must not pull in (logs, policies and training need them)."""
+
+
+def heavy_modules_after(code: str) -> list[str]:
+    """The HEAVY packages in sys.modules after `code` runs in a fresh interpreter."""
+    probe = f"{code}\nimport sys\nprint(*[name for name in {HEAVY!r} if name in sys.modules])"
+    return subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split()
+
+
+def test_the_simulator_imports_without_onnxruntime_mcap_or_torch():
+    every_sim_module = (
+        "import importlib, pkgutil, terl_rt.sim\n"
+        "for module in pkgutil.iter_modules(terl_rt.sim.__path__):\n"
+        "    importlib.import_module(f'terl_rt.sim.{module.name}')"
+    )
+    assert heavy_modules_after(every_sim_module) == []
+
+
+def test_the_package_and_the_policy_contract_import_without_them():
+    assert heavy_modules_after("import terl_rt, terl_rt.policy.contract") == []
+
+
+def test_logs_and_policies_load_what_they_need():
+    assert heavy_modules_after("import terl_rt.logs.reader, terl_rt.policy.onnx_policy") == ["mcap", "onnxruntime"]
