@@ -26,7 +26,6 @@ from training.train import (
     build_learner,
     curriculum_scenario,
     learn,
-    observation_rows,
     recent_means,
     train,
     training_scenario,
@@ -204,7 +203,7 @@ def test_stored_transition_is_done_when_the_pursuer_collided_and_truncation_boot
     rows = np.flatnonzero(acted)
     buffer = ReplayBuffer(10, evader_slots=8)
     store = TransitionStore(buffer, tiny_config(), 6)
-    store.add(rows, observation_rows(observation, rows), np.full((2, 3), 4), observation, result, np.random.default_rng(0))
+    store.add(rows, observation.rows(rows).as_inputs(), np.full((2, 3), 4), observation, result, np.random.default_rng(0))
     assert buffer.dones[:5].tolist() == [False, True, False, False, False]
     assert buffer.rewards[:5].tolist() == [0, 1, 3, 4, 5]
     assert buffer.discounts[:5].tolist() == pytest.approx([0.99] * 5)
@@ -245,7 +244,7 @@ def test_network_overfits_a_tiny_fixed_batch():
     rng = np.random.default_rng(0)
     for _ in range(5):
         rows = np.flatnonzero(world.state.pursuer_active)
-        states = observation_rows(observation, rows)
+        states = observation.rows(rows).as_inputs()
         actions = rng.integers(0, 9, world.state.pursuer_active.shape)
         observation, result = world.step(actions)
         store.add(rows, states, actions, observation, result, rng)

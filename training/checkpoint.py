@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
 from training.config import Config
 from training.export import export_onnx
 from training.networks import QNetwork, build_network
@@ -33,6 +34,8 @@ TARGET_FILE = "target.safetensors"
 OPTIMIZER_FILE = "optimizer.pt"
 CONFIG_FILE = "config.json"
 STATE_FILE = "state.json"
+META_TRAINING_CONFIG = "terl.training_config"
+"""Metadata key of an exported policy: the training Config as JSON (training's own, not the contract's)."""
 
 
 @dataclass
@@ -184,8 +187,8 @@ def export_checkpoint(source: str | Path, output: str | Path) -> Path:
     """
     model, config, counters = load_network(source)
     metadata = {
-        "terl.training_steps": str(counters.env_step),
-        "terl.trained_on": trained_on(counters.stages),
-        "terl.training_config": json.dumps(config.to_dict(), sort_keys=True),
+        META_TRAINING_STEPS: str(counters.env_step),
+        META_TRAINED_ON: trained_on(counters.stages),
+        META_TRAINING_CONFIG: json.dumps(config.to_dict(), sort_keys=True),
     }
     return export_onnx(model, output, metadata)

@@ -21,7 +21,18 @@ import onnxruntime as ort
 import torch
 from torch import nn
 
-from terl_rt.policy.contract import CONTRACT_VERSION, INPUT_NAMES
+from terl_rt.policy.contract import (
+    CONTRACT_VERSION,
+    INPUT_NAMES,
+    INPUTS,
+    META_CONTRACT,
+    META_HEADS,
+    META_HIDDEN,
+    META_LAYERS,
+    META_MODEL,
+    META_PURSUER_ACTIONS,
+    OUTPUTS,
+)
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 from terl_rt.sim.simulator import Simulator
@@ -59,21 +70,21 @@ class _ContractGraph(nn.Module):
 
 
 def output_names(model: QNetwork) -> tuple[str, ...]:
-    """("q_values",), plus "target_weights" for models with target selection."""
-    return ("q_values", "target_weights") if model.has_target_selection else ("q_values",)
+    """The contract's outputs the model has: q_values, plus target_weights with target selection."""
+    return tuple(spec.name for spec in OUTPUTS if spec.required or model.has_target_selection)
 
 
 def contract_metadata(model: QNetwork) -> dict[str, str]:
     """The metadata_props every policy carries: contract, model name, sizes, action table (JSON)."""
     config = model.config
     return {
-        "terl.contract": CONTRACT_VERSION,
-        "terl.model": config["name"],
-        "terl.hidden": str(config["hidden"]),
-        "terl.layers": str(config["layers"]),
-        "terl.heads": str(config["heads"]),
+        META_CONTRACT: CONTRACT_VERSION,
+        META_MODEL: config["name"],
+        META_HIDDEN: str(config["hidden"]),
+        META_LAYERS: str(config["layers"]),
+        META_HEADS: str(config["heads"]),
         # [9, 2] rows of (acceleration m/s^2, yaw rate rad/s), index = action id.
-        "terl.pursuer_actions": json.dumps(PURSUER_ACTIONS.tolist()),
+        META_PURSUER_ACTIONS: json.dumps(PURSUER_ACTIONS.tolist()),
     }
 
 
@@ -124,17 +135,13 @@ def example_inputs(
 
 
 def _dynamic_axes(model: QNetwork) -> dict[str, dict[int, str]]:
-    axes = {
-        "ego": {0: "B"},
-        "teammates": {0: "B", 1: "P"},
-        "evaders": {0: "B", 1: "E"},
-        "obstacles": {0: "B", 1: "O"},
-        "mask": {0: "B", 1: "1+P+E+O"},
-        "q_values": {0: "B"},
+    """The contract's named (dynamic) dimensions of every input and of the model's outputs."""
+    names = set(INPUT_NAMES) | set(output_names(model))
+    return {
+        spec.name: {axis: dim for axis, dim in enumerate(spec.dims) if isinstance(dim, str)}
+        for spec in INPUTS + OUTPUTS
+        if spec.name in names
     }
-    if model.has_target_selection:
-        axes["target_weights"] = {0: "B", 1: "E"}
-    return axes
 
 
 def _trace_to_onnx(model: QNetwork, path: Path, opset: int) -> None:

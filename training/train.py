@@ -50,6 +50,7 @@ import torch
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.metrics import summarize
 from terl_rt.sim.observation import Observation
+from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
@@ -104,13 +105,8 @@ def crossings(before: int, after: int, every: int) -> int:
 
 
 # ---------------------------------------------------------------- acting
-def observation_rows(observation: Observation, rows: np.ndarray) -> dict[str, np.ndarray]:
-    """Observation arrays [B, N, ...] flattened to [B * N, ...] and cut to `rows` [R]: [R, ...]."""
-    arrays = observation.as_inputs()
-    return {key: arrays[key].reshape((-1,) + arrays[key].shape[2:])[rows] for key in INPUT_NAMES}
-
-
 def network_device(model: QNetwork) -> torch.device:
+    """The device of a network's weights."""
     return next(model.parameters()).device
 
 
@@ -128,24 +124,15 @@ def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray
         return model.q_values(*as_tensors(states, network_device(model))).argmax(dim=1).cpu().numpy()
 
 
-def act(
-    model: QNetwork, world: World, observation: Observation, epsilon: float, rng: np.random.Generator
-) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """Choose the actions of every active pursuer of every world in one forward.
-
-    Returns rows [R] (flat indices b * N + n of the active pursuers), their states
-    [R, ...] and the actions [B, N] int64 (0 for inactive pursuers). Each pursuer
-    explores on its own with probability `epsilon`.
-    """
-    active = world.state.pursuer_active
-    rows = np.flatnonzero(active)
-    states = observation_rows(observation, rows)
+def epsilon_greedy(
+    model: QNetwork, states: dict[str, np.ndarray], epsilon: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Action indices [R] for the rows' states [R, ...]: greedy in one batched forward,
+    each row replaced by a uniformly random action with probability `epsilon`."""
     chosen = greedy_actions(model, states)
-    explore = rng.random(len(rows)) < epsilon
+    explore = rng.random(len(chosen)) < epsilon
     chosen[explore] = rng.integers(0, NUM_PURSUER_ACTIONS, int(explore.sum()))
-    actions = np.zeros(active.size, np.int64)
-    actions[rows] = chosen
-    return rows, states, actions.reshape(active.shape)
+    return chosen
 
 
 class TransitionStore:
@@ -170,8 +157,8 @@ class TransitionStore:
         result: StepResult,
         rng: np.random.Generator,
     ) -> int:
-        """Add the step of every pursuer that acted (rows and states from `act`, actions [B, N]);
-        returns the transitions stored.
+        """Add the step of every pursuer that acted (rows [R] b * N + n and their states [R, ...],
+        actions [B, N]); returns the transitions stored.
 
         Terminal: the pursuer collided, or its episode terminated (all evaders encircled,
         or too few pursuers left) when Config.success_ends_transitions. Truncated
@@ -183,7 +170,7 @@ class TransitionStore:
         stops = np.broadcast_to(ended, terminal.shape)
         done = self.window.push(
             rows, states, actions.ravel()[rows], result.reward.ravel()[rows],
-            observation_rows(next_observation, rows), terminal.ravel()[rows], stops.ravel()[rows],
+            next_observation.rows(rows).as_inputs(), terminal.ravel()[rows], stops.ravel()[rows],
         )
         keep = np.arange(len(done.actions))
         if self.config.store_pursuers:
@@ -276,23 +263,22 @@ def evaluate(model: QNetwork, scenario: Scenario, config: Config, episodes: int 
     the mean per-pursuer return.
     """
     scenario = scenario.replace(max_steps=config.eval_max_steps)
-    world = World(scenario, num_envs=episodes or config.eval_episodes, seed=config.eval_seed)
-    observation = world.reset()
-    finished = np.zeros(world.num_envs, bool)
-    returns = np.zeros(world.num_envs)
-    outcomes = [None] * world.num_envs
+    rollout = Rollout(World(scenario, num_envs=episodes or config.eval_episodes, seed=config.eval_seed))
+    num_envs = rollout.world.num_envs
+    finished = np.zeros(num_envs, bool)
+    returns = np.zeros(num_envs)
+    outcomes = [None] * num_envs
     while not finished.all():
-        # World.step refuses ended episodes, so finished worlds are restarted and ignored.
-        rows = np.flatnonzero(world.state.pursuer_active & ~finished[:, None])
-        actions = np.zeros(world.state.pursuer_active.size, np.int64)
-        actions[rows] = greedy_actions(model, observation_rows(observation, rows))
-        observation, result = world.step(actions.reshape(world.state.pursuer_active.shape))
-        returns += np.where(finished, 0.0, result.reward.sum(axis=1) / scenario.pursuers)
-        for env in np.flatnonzero(world.done & ~finished):
-            outcomes[env] = world.metrics(env)
-            finished[env] = True
-        if world.done.any():
-            observation = world.reset(world.done.copy())
+        # An environment whose first episode ended is restarted by the rollout and ignored.
+        turn = rollout.turn()
+        deciding = ~finished[turn.rows // scenario.pursuers]
+        chosen = np.zeros(len(turn.rows), np.int64)
+        chosen[deciding] = greedy_actions(model, turn.observation.rows(turn.rows[deciding]).as_inputs())
+        step = rollout.step(chosen)
+        returns += np.where(finished, 0.0, step.result.reward.sum(axis=1) / scenario.pursuers)
+        for env, outcome in step.outcomes.items():
+            if not finished[env]:
+                outcomes[env], finished[env] = outcome, True
     return {
         "scenario": scenario.name,
         "episodes": len(outcomes),
@@ -446,8 +432,7 @@ def train(
     # --- environments
     num_envs = config.num_envs
     scenario = training_scenario(config, counters.env_step)
-    world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
-    observation = world.reset()
+    rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
     transitions = TransitionStore(buffer, config, num_envs * scenario.pursuers)
     if scenario.name not in counters.stages:
         counters.stages.append(scenario.name)
@@ -464,8 +449,7 @@ def train(
         stage = training_scenario(config, counters.env_step)
         if stage.name != scenario.name:
             scenario = stage
-            world = World(scenario, num_envs, seed=int(rng.integers(2**31)))
-            observation = world.reset()
+            rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
             transitions.new_worlds(num_envs * scenario.pursuers)
             episode_returns[:] = 0.0
             episode_terms[:] = 0.0
@@ -478,25 +462,22 @@ def train(
         epsilon = linear_schedule(
             config.start_e, config.end_e, config.exploration_fraction * config.total_steps, counters.env_step
         )
-        rows, states, actions = act(model, world, observation, epsilon, rng)
-        observation, result = world.step(actions)
+        turn = rollout.turn()  # restarts the worlds whose episode ended in the last step
+        states = turn.observation.rows(turn.rows).as_inputs()
+        step = rollout.step(epsilon_greedy(model, states, epsilon, rng))
 
-        # --- store (the next observation is the one before any reset)
-        transitions.add(rows, states, actions, observation, result, rng)
+        # --- store (the next observation is the one before any restart)
+        transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
 
-        # --- episode bookkeeping, then restart the ended worlds
-        episode_returns += result.reward.sum(axis=1) / scenario.pursuers
-        episode_terms += result.reward_terms.sum(axis=1) / scenario.pursuers
-        for env in np.flatnonzero(world.done):
-            outcome = world.metrics(env)
+        # --- episode bookkeeping
+        episode_returns += step.result.reward.sum(axis=1) / scenario.pursuers
+        episode_terms += step.result.reward_terms.sum(axis=1) / scenario.pursuers
+        for env, outcome in step.outcomes.items():
             recent.append(
                 (outcome.success, episode_returns[env], outcome.collision_ratio, outcome.steps, episode_terms[env].copy())
             )
+            episode_returns[env], episode_terms[env] = 0.0, 0.0
             counters.episodes += 1
-        if world.done.any():
-            episode_returns[world.done] = 0.0
-            episode_terms[world.done] = 0.0
-            observation = world.reset(world.done.copy())
         previous_step = counters.env_step
         counters.env_step += num_envs
 
@@ -615,23 +596,21 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
     else:
         shares = {config.scenario: 1.0}
 
-    rollout = {}
+    rates = {}
     for name in shares:
         scenario = Scenario.preset(name).replace(reward=config.reward)
-        world = World(scenario, config.num_envs, seed=config.seed)
+        rollout = Rollout(World(scenario, config.num_envs, seed=config.seed))
         transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
-        observation = world.reset()
         timed_steps, start = -3, time.perf_counter()  # three untimed warm-up batch steps
         while timed_steps <= 0 or time.perf_counter() - start < seconds:
             if timed_steps == 0:
                 start = time.perf_counter()
-            rows, states, actions = act(model, world, observation, config.start_e, rng)
-            observation, result = world.step(actions)
-            transitions.add(rows, states, actions, observation, result, rng)
-            if world.done.any():
-                observation = world.reset(world.done.copy())
+            turn = rollout.turn()
+            states = turn.observation.rows(turn.rows).as_inputs()
+            step = rollout.step(epsilon_greedy(model, states, config.start_e, rng))
+            transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
             timed_steps += 1
-        rollout[name] = timed_steps * config.num_envs / (time.perf_counter() - start)
+        rates[name] = timed_steps * config.num_envs / (time.perf_counter() - start)
 
     learn(model, target, optimizer, buffer.sample(config.batch_size, rng), config)  # warm-up
     updates, start = 0, time.perf_counter()
@@ -640,7 +619,7 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
         updates += 1
     updates_per_second = updates / (time.perf_counter() - start)
 
-    rollout_seconds = sum(share * config.total_steps / rollout[name] for name, share in shares.items())
+    rollout_seconds = sum(share * config.total_steps / rates[name] for name, share in shares.items())
     update_count = max(config.total_steps - config.learning_starts, 0) / config.train_frequency
     return Throughput(
         model=config.model,
@@ -649,7 +628,7 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
         heads=config.heads,
         num_envs=config.num_envs,
         threads=torch.get_num_threads(),
-        rollout_steps_per_second=rollout,
+        rollout_steps_per_second=rates,
         updates_per_second=updates_per_second,
         estimated_hours=(rollout_seconds + update_count / updates_per_second) / 3600.0,
     )
