@@ -23,7 +23,7 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
   mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
   same split by reward term), collision_ratio and episode_steps over the last 100
   episodes, steps_per_second (this session),
-  wall_seconds (all sessions), eval (the `evaluate` dict, or null);
+  wall_seconds (all sessions), eval (the `greedy_evaluation` dict, or null);
 - "stage": env_step and the curriculum stage that starts there;
 - "resume": env_step and how the replay buffer was restored (loaded, or refilled);
 - "snapshot": env_step, the greedy evaluations of a snapshot (current stage and
@@ -254,12 +254,12 @@ def learn(
 
 
 # ---------------------------------------------------------------- evaluation
-def evaluate(model: QNetwork, scenario: Scenario, config: Config, episodes: int | None = None) -> dict[str, Any]:
+def greedy_evaluation(model: QNetwork, scenario: Scenario, config: Config, episodes: int | None = None) -> dict[str, Any]:
     """Greedy episodes of `scenario` on fixed seeds, run as one batch.
 
     `episodes` (default `config.eval_episodes`) worlds seeded with `config.eval_seed`, truncated after
     `config.eval_max_steps` steps. Returns the scenario name, episodes, the fields of
-    terl_rt.evaluate.Summary (success rate, travel time, collision ratio, steps) and
+    terl_rt.sim.metrics.Summary (success rate, travel time, collision ratio, steps) and
     the mean per-pursuer return.
     """
     scenario = scenario.replace(max_steps=config.eval_max_steps)
@@ -306,8 +306,8 @@ def take_snapshot(
     """Evaluate the online network on the current stage and `config.snapshot_preset`;
     returns the "snapshot" record (without env_step) and whether it beats `best`."""
     evaluations = [
-        evaluate(model, scenario, config, config.snapshot_episodes),
-        evaluate(model, Scenario.preset(config.snapshot_preset).replace(reward=config.reward), config,
+        greedy_evaluation(model, scenario, config, config.snapshot_episodes),
+        greedy_evaluation(model, Scenario.preset(config.snapshot_preset).replace(reward=config.reward), config,
                  config.snapshot_episodes),
     ]
     score = snapshot_score(evaluations, config)
@@ -500,7 +500,7 @@ def train(
         if config.eval_frequency and (
             crossings(previous_step, counters.env_step, config.eval_frequency) or finished
         ):
-            evaluation = evaluate(model, scenario, config)
+            evaluation = greedy_evaluation(model, scenario, config)
         if config.snapshot_frequency and (
             crossings(previous_step, counters.env_step, config.snapshot_frequency) or finished
         ):
