@@ -163,21 +163,6 @@ class ReplayBuffer:
             )
 
 
-class Completed(NamedTuple):
-    """Transitions completed by one step of an `NStepWindow`: K of them."""
-
-    rows: np.ndarray
-    """[K] int: the window row (pursuer b * N + i) each came from."""
-    states: dict[str, np.ndarray]
-    actions: np.ndarray
-    returns: np.ndarray
-    """[K] float32: the k-step returns."""
-    next_states: dict[str, np.ndarray]
-    dones: np.ndarray
-    discounts: np.ndarray
-    """[K] float32: gamma^k."""
-
-
 class NStepWindow:
     """Turns per-step transitions of fixed rows (pursuer b * N + i of B worlds) into
     n-step transitions: R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}, bootstrapped
@@ -216,14 +201,14 @@ class NStepWindow:
         next_states: Mapping[str, np.ndarray],
         dones: np.ndarray,
         stops: np.ndarray,
-    ) -> Completed:
+    ) -> tuple[np.ndarray, ReplayBatch]:
         """Add one step of the rows that acted and return the transitions it completes.
 
         rows [R] int row numbers; states / next_states [R, ...] by input name; actions,
         rewards [R]; dones [R] bool: the transition is terminal (no bootstrap); stops [R]
         bool: the pursuer's episode stops here anyway (truncation), everything pending is
-        bootstrapped from next_states. Returns the completed transitions, oldest first
-        within a row.
+        bootstrapped from next_states. Returns the window row of each completed transition
+        [K] and the transitions (K rows, returns in `rewards`), oldest first within a row.
         """
         slot = self.slot
         self.slot = (slot + 1) % self.n
@@ -244,14 +229,13 @@ class NStepWindow:
         which_row, which_slot = np.nonzero(out[:, order])
         which_slot = order[which_slot]
         source = rows[which_row]
-        result = Completed(
-            source,
-            {key: values[source, which_slot] for key, values in self.states.items()},
-            self.actions[source, which_slot],
-            self.returns[source, which_slot].astype(np.float32),
-            {key: values[which_row] for key, values in next_states.items()},
-            dones[which_row],
-            (self.gamma ** self.age[source, which_slot]).astype(np.float32),
+        completed = ReplayBatch(
+            observations={key: values[source, which_slot] for key, values in self.states.items()},
+            actions=self.actions[source, which_slot],
+            rewards=self.returns[source, which_slot].astype(np.float32),
+            next_observations={key: values[which_row] for key, values in next_states.items()},
+            dones=dones[which_row],
+            discounts=(self.gamma ** self.age[source, which_slot]).astype(np.float32),
         )
         self.age[source, which_slot] = 0
-        return result
+        return source, completed

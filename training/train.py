@@ -168,17 +168,17 @@ class TransitionStore:
         ended = (result.terminated | result.truncated)[:, None]
         terminal = result.collided | (result.terminated[:, None] if self.config.success_ends_transitions else False)
         stops = np.broadcast_to(ended, terminal.shape)
-        done = self.window.push(
+        sources, done = self.window.push(
             rows, states, actions.ravel()[rows], result.reward.ravel()[rows],
             next_observation.rows(rows).as_inputs(), terminal.ravel()[rows], stops.ravel()[rows],
         )
-        keep = np.arange(len(done.actions))
+        keep = np.arange(len(sources))
         if self.config.store_pursuers:
             # at most store_pursuers transitions per world of this step, drawn at random
-            keep = subsample_per_group(done.rows // num_pursuers, self.config.store_pursuers, rng)
+            keep = subsample_per_group(sources // num_pursuers, self.config.store_pursuers, rng)
         self.buffer.add(
-            {key: value[keep] for key, value in done.states.items()}, done.actions[keep], done.returns[keep],
-            {key: value[keep] for key, value in done.next_states.items()}, done.dones[keep], done.discounts[keep],
+            {key: value[keep] for key, value in done.observations.items()}, done.actions[keep], done.rewards[keep],
+            {key: value[keep] for key, value in done.next_observations.items()}, done.dones[keep], done.discounts[keep],
         )
         return len(keep)
 

@@ -30,55 +30,56 @@ def push(window, step, rewards, dones=None, stops=None, rows=(0,)):
     rows = np.array(rows)
     dones = np.zeros(len(rows), bool) if dones is None else np.array(dones)
     stops = np.zeros(len(rows), bool) if stops is None else np.array(stops)
-    return window.push(rows, marked([step] * len(rows)), np.full(len(rows), step % 9), np.array(rewards, float),
-                       marked([step + 1] * len(rows)), dones, stops)
+    sources, done = window.push(rows, marked([step] * len(rows)), np.full(len(rows), step % 9),
+                                np.array(rewards, float), marked([step + 1] * len(rows)), dones, stops)
+    return sources, done
 
 
 # ---------------------------------------------------------------- n-step returns
 def test_three_step_return_is_emitted_once_the_window_is_full():
     # gamma 0.5, rewards 1, 2, 4: R = 1 + 0.5 * 2 + 0.25 * 4 = 3, bootstrapped from s_3 with 0.125
     window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
-    assert len(push(window, 0, [1.0]).actions) == 0
-    assert len(push(window, 1, [2.0]).actions) == 0
-    out = push(window, 2, [4.0])
-    assert out.returns.tolist() == [3.0] and out.discounts.tolist() == [0.125] and out.dones.tolist() == [False]
-    assert out.states["ego"][:, 0].tolist() == [0.0] and out.next_states["ego"][:, 0].tolist() == [3.0]
+    assert len(push(window, 0, [1.0])[1].actions) == 0
+    assert len(push(window, 1, [2.0])[1].actions) == 0
+    rows, out = push(window, 2, [4.0])
+    assert out.rewards.tolist() == [3.0] and out.discounts.tolist() == [0.125] and out.dones.tolist() == [False]
+    assert out.observations["ego"][:, 0].tolist() == [0.0] and out.next_observations["ego"][:, 0].tolist() == [3.0]
     # the next step completes the window that started at step 1: 2 + 0.5 * 4 + 0.25 * 8 = 6
-    out = push(window, 3, [8.0])
-    assert out.returns.tolist() == [6.0] and out.states["ego"][:, 0].tolist() == [1.0]
+    rows, out = push(window, 3, [8.0])
+    assert out.rewards.tolist() == [6.0] and out.observations["ego"][:, 0].tolist() == [1.0]
 
 
 def test_a_terminal_step_flushes_every_pending_return_without_bootstrap():
     window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
     push(window, 0, [1.0])
-    out = push(window, 1, [-80.0], dones=[True])
+    rows, out = push(window, 1, [-80.0], dones=[True])
     # pending: from step 0, 1 + 0.5 * -80 = -39 (k = 2); from step 1, -80 (k = 1); oldest first
-    assert out.returns.tolist() == [-39.0, -80.0]
+    assert out.rewards.tolist() == [-39.0, -80.0]
     assert out.discounts.tolist() == [0.25, 0.5] and out.dones.tolist() == [True, True]
-    assert out.states["ego"][:, 0].tolist() == [0.0, 1.0]
-    assert len(push(window, 5, [1.0]).actions) == 0  # the row starts afresh
+    assert out.observations["ego"][:, 0].tolist() == [0.0, 1.0]
+    assert len(push(window, 5, [1.0])[1].actions) == 0  # the row starts afresh
 
 
 def test_truncation_flushes_pending_returns_bootstrapped_from_the_last_state():
     window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
     push(window, 0, [1.0])
-    out = push(window, 1, [2.0], stops=[True])
-    assert out.returns.tolist() == [2.0, 2.0] and out.discounts.tolist() == [0.25, 0.5]
-    assert out.dones.tolist() == [False, False] and out.next_states["ego"][:, 0].tolist() == [2.0, 2.0]
+    rows, out = push(window, 1, [2.0], stops=[True])
+    assert out.rewards.tolist() == [2.0, 2.0] and out.discounts.tolist() == [0.25, 0.5]
+    assert out.dones.tolist() == [False, False] and out.next_observations["ego"][:, 0].tolist() == [2.0, 2.0]
 
 
 def test_one_step_window_passes_every_step_through():
     window = NStepWindow(1, 0.99, num_rows=3, shapes=SHAPES)
-    out = push(window, 0, [1.0, 2.0], rows=(0, 2))
-    assert out.rows.tolist() == [0, 2] and out.returns.tolist() == [1.0, 2.0]
+    rows, out = push(window, 0, [1.0, 2.0], rows=(0, 2))
+    assert rows.tolist() == [0, 2] and out.rewards.tolist() == [1.0, 2.0]
     assert out.discounts.tolist() == pytest.approx([0.99, 0.99])
 
 
 def test_rows_that_do_not_act_keep_their_window():
     window = NStepWindow(2, 0.5, num_rows=2, shapes=SHAPES)
     push(window, 0, [1.0, 10.0], rows=(0, 1))
-    out = push(window, 1, [2.0], rows=(0,))  # row 1 did not act this step
-    assert out.rows.tolist() == [0] and out.returns.tolist() == [2.0]
+    rows, out = push(window, 1, [2.0], rows=(0,))  # row 1 did not act this step
+    assert rows.tolist() == [0] and out.rewards.tolist() == [2.0]
 
 
 # ---------------------------------------------------------------- double DQN
