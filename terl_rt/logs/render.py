@@ -234,6 +234,18 @@ def _draw_frame(
     return image
 
 
+def draw_state(
+    states: list[dict[str, np.ndarray]], t: int, episode, size: int = 640, final: bool = False
+) -> Image.Image:
+    """Draw step `t` of `states` (`Simulator.state()` dicts, one per step, step 0 first)
+    as `render` draws a logged one. `episode` needs `scenario`, `number`, `seed` and
+    `metrics` (an EpisodeMetrics or None), as a LoggedEpisode has: what
+    terl_rt.envs draws its frames with."""
+    canvas = _Canvas.of(episode.scenario.arena, size, _SUPERSAMPLE)
+    fonts = (_font(15 * _SUPERSAMPLE), _font(12 * _SUPERSAMPLE))
+    return _draw_frame(states, t, episode, canvas, fonts, final=final)
+
+
 def _frame_steps(last: int, every: int) -> list[int]:
     steps = list(range(0, last + 1, every))
     if steps[-1] != last:
