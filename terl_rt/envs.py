@@ -35,8 +35,7 @@ try:
     from pettingzoo import ParallelEnv
 except ImportError as error:  # pragma: no cover - exercised without the extra
     raise ImportError(
-        "terl_rt.envs needs the pettingzoo extra: pip install -e '.[pettingzoo]' "
-        "(from the checkout; or pip install 'terl-rt[pettingzoo]')"
+        "terl_rt.envs needs the pettingzoo extra: pip install -e '.[pettingzoo]' (from the terl-rt checkout)"
     ) from error
 
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS

@@ -87,6 +87,7 @@ def test_eval_with_two_workers_matches_one(files):
 
 def test_eval_without_the_default_policy_says_to_pass_one(monkeypatch, tmp_path):
     monkeypatch.setattr(terl_rt.cli.options, "DEFAULT_POLICY", Path("exported") / "absent-policy.onnx")
+    monkeypatch.setattr(terl_rt.cli.options, "PACKAGED_POLICY", ("terl_rt.policy", "default/absent-policy.onnx"))
     monkeypatch.chdir(tmp_path)
     result = invoke("eval", "--episodes", "1")
     assert result.exit_code == 2

@@ -27,7 +27,7 @@ GIF_MAX_FRAMES = 200
 """With `every=None`, GIFs keep at most this many frames (every frame is held in memory)."""
 TRAIL_STEPS = 20
 """Steps (0.5 s each) of past positions drawn behind each robot."""
-VIDEO_INSTALL = "pip install 'terl-rt[video]'"
+VIDEO_INSTALL = "pip install -e '.[video]' (from the terl-rt checkout)"
 
 _SUPERSAMPLE = 2
 _HEADER_PX = 56
