@@ -103,7 +103,7 @@ def evaluate_with_progress(
     for scenario in scenarios:
         with click.progressbar(
             length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
-            show_pos=True,
+            show_pos=True, show_eta=True,
         ) as bar:
             results.append(evaluate_policy(
                 policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
