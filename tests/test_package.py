@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -29,8 +30,16 @@ def test_the_packaged_default_policy_is_the_exported_one():
 def installed(tmp_path_factory) -> Path:
     """The wheel of this checkout installed (not editable) into a folder of its own."""
     folder = tmp_path_factory.mktemp("wheel")
+    # Build from a copy of what a source distribution holds, so the build leaves nothing
+    # (build/, *.egg-info) in the checkout and no stale build output slips in.
+    source = folder / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
+    shutil.copytree(ROOT / "terl_rt", source / "terl_rt", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "training", source / "training", ignore=shutil.ignore_patterns("__pycache__"))
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", folder / "dist", ROOT],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", folder / "dist", source],
         capture_output=True, text=True,
     )
     if build.returncode != 0:

@@ -136,7 +136,7 @@ json_option = click.option(
 )
 policy_option = click.option(
     "--policy", "policy_path", type=str, default=None, metavar="PATH",
-    help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout].",
+    help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
 )
 threads_option = click.option(
     "--threads", type=click.IntRange(min=1), default=None,
