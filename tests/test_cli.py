@@ -15,8 +15,8 @@ import terl_rt.cli.options
 from terl_rt.cli.main import cli
 
 ROW_KEYS = {
-    "name", "episodes", "success_rate", "travel_time_s_mean", "travel_time_s_std",
-    "collision_ratio_mean", "steps_mean", "wall_s",
+    "name", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "travel_time_s_std",
+    "collision_ratio_mean", "steps_mean", "ci95", "wall_s", "per_episode",
 }
 
 
@@ -61,7 +61,7 @@ def test_eval_json_is_one_object_with_the_documented_keys(files):
                     "--max-steps", "4", "--json")
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)  # the whole of stdout is one object
-    assert set(out) == {"policy", "scenarios"}
+    assert set(out) == {"terl_rt", "policy", "seed", "scenarios"}
     assert out["policy"]["name"] == "linear-test"
     (row,) = out["scenarios"]
     assert set(row) == ROW_KEYS
@@ -87,6 +87,7 @@ def test_eval_with_two_workers_matches_one(files):
 
 def test_eval_without_the_default_policy_says_to_pass_one(monkeypatch, tmp_path):
     monkeypatch.setattr(terl_rt.cli.options, "DEFAULT_POLICY", Path("exported") / "absent-policy.onnx")
+    monkeypatch.setattr(terl_rt.cli.options, "PACKAGED_POLICY", ("terl_rt.policy", "default/absent-policy.onnx"))
     monkeypatch.chdir(tmp_path)
     result = invoke("eval", "--episodes", "1")
     assert result.exit_code == 2

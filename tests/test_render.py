@@ -36,7 +36,7 @@ def count_pixels_near(image: Image.Image, kind: str, tolerance: int = 12) -> int
 def test_png_is_the_final_frame(log_path, tmp_path):
     out = render(log_path, tmp_path / "final.png")
     with Image.open(out) as image:
-        assert image.format == "PNG" and image.size == (640, 736)
+        assert image.format == "PNG" and image.size == (640, 720)  # arena, axes (m) and legend
         # The encircled evader (green) and the free one (red) are both drawn.
         assert count_pixels_near(image, "evader_encircled") > 50
         assert count_pixels_near(image, "evader") > 20
@@ -68,7 +68,7 @@ def test_unknown_format_is_refused(log_path, tmp_path):
 def test_mp4_without_the_video_extra_names_the_install(log_path, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "imageio", None)
     monkeypatch.setitem(sys.modules, "imageio.v2", None)
-    with pytest.raises(RenderError, match=r"pip install 'terl-rt\[video\]'"):
+    with pytest.raises(RenderError, match=r"pip install -e '\.\[video\]'"):
         render(log_path, tmp_path / "episode.mp4")
 
 

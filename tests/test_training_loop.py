@@ -235,6 +235,7 @@ def test_config_rejects_a_wrong_type_and_a_bad_value():
 
 
 # ---------------------------------------------------------------- learning
+@pytest.mark.slow
 def test_network_overfits_a_tiny_fixed_batch():
     # Real transitions of curriculum-3, a frozen target: the loss must fall a long way.
     world = World(Scenario.preset("curriculum-3"), num_envs=4, seed=3)
@@ -257,6 +258,7 @@ def test_network_overfits_a_tiny_fixed_batch():
 
 
 # ---------------------------------------------------------------- end to end
+@pytest.mark.slow
 def test_train_checkpoint_resume_export_and_act(tmp_path):
     config_file = tmp_path / "tiny.json"
     tiny_config(total_steps=1600).to_file(config_file)
@@ -303,6 +305,7 @@ def test_recent_means_split_the_return_by_reward_term():
     assert recent_means(deque())["return_terms"] is None
 
 
+@pytest.mark.slow
 def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp_path):
     config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0, save_replay=False)
     train(config, tmp_path / "run", show_progress=False)
@@ -316,6 +319,7 @@ def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp
     assert "refilled for 200 environment steps" in next(r["note"] for r in records if r["kind"] == "resume")
 
 
+@pytest.mark.slow
 def test_dqn_trains_and_exports(tmp_path):
     config = tiny_config(model="dqn", layers=0, heads=0, total_steps=800, eval_frequency=0)
     counters = train(config, tmp_path / "dqn", show_progress=False)
@@ -331,6 +335,7 @@ def test_train_refuses_to_overwrite_a_checkpoint(tmp_path, capsys):
     assert "--resume" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_bench_prints_rollout_and_update_rates(tmp_path, capsys):
     config_file = tmp_path / "tiny.json"
     tiny_config().to_file(config_file)

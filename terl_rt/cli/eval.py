@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import importlib.metadata
 import json
 from pathlib import Path
 
@@ -25,21 +27,66 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.stats import format_interval
 from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.policy.contract import META_CONTRACT, META_TRAINING_STEPS
 from terl_rt.policy.onnx_policy import policy_info
 
 HEADER = (
-    f"{'scenario':<14}{'episodes':>9}{'success':>9}{'travel time (s)':>18}"
-    f"{'collision':>11}{'steps':>9}{'wall (s)':>10}"
+    f"{'scenario':<14}{'episodes':>9}{'success':>9} {'95 % CI':<13}{'travel time (s)':>18} {'95 % CI':<15}"
+    f"{'collision':>10} {'95 % CI':<15}{'steps':>8}{'wall (s)':>10}"
 )
+
+CSV_COLUMNS = (
+    "scenario", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
+    "collision_ratio", "captures", "max_steps", "policy", "policy_sha256", "terl_rt",
+)
+"""Columns of `terl-rt eval --csv`, one row per episode."""
 
 
 def _row(result: ScenarioResult) -> str:
+    ci = result.ci95()
     travel = f"{result.travel_time_s_mean:.1f} ± {result.travel_time_s_std:.1f}"
     return (
-        f"{result.name:<14}{result.episodes:>9}{result.success_rate:>9.2f}{travel:>18}"
-        f"{result.collision_ratio_mean:>11.3f}{result.steps_mean:>9.1f}{result.wall_s:>10.1f}"
+        f"{result.name:<14}{result.episodes:>9}{result.success_rate:>9.2f} {format_interval(ci['success_rate'], 2):<13}"
+        f"{travel:>18} {format_interval(ci['travel_time_s'], 1):<15}"
+        f"{result.collision_ratio_mean:>10.3f} {format_interval(ci['collision_ratio'], 3):<15}"
+        f"{result.steps_mean:>8.1f}{result.wall_s:>10.1f}"
     )
+
+
+def terl_rt_version() -> str:
+    """The installed terl-rt's version ("unknown" when run from a bare checkout)."""
+    try:
+        return importlib.metadata.version("terl-rt")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def policy_version(info: dict) -> dict:
+    """What identifies the policy's version: name, sha256, path, its contract version and
+    the training steps recorded in its metadata."""
+    metadata = info.get("metadata", {})
+    return {
+        **policy_json(info),
+        "contract": metadata.get(META_CONTRACT),
+        "training_steps": metadata.get(META_TRAINING_STEPS),
+    }
+
+
+def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
+    """One row per episode of every scenario (CSV_COLUMNS)."""
+    version = terl_rt_version()
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        for result in results:
+            for row in result.episode_rows():
+                writer.writerow({
+                    "scenario": result.name, **{k: v for k, v in row.items() if k in CSV_COLUMNS},
+                    "max_steps": result.max_steps, "policy": info["name"], "policy_sha256": info["sha256"],
+                    "terl_rt": version,
+                })
 
 
 @click.command("eval")
@@ -53,13 +100,21 @@ def _row(result: ScenarioResult) -> str:
 @workers_option
 @log_option
 @json_option
+@click.option(
+    "--csv", "csv_path", type=str, default=None, metavar="FILE.csv",
+    help="Also write one row per episode (seed, outcome, steps, collisions, captures) to this CSV file.",
+)
 @threads_option
 def eval_command(
-    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json, threads
+    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json,
+    csv_path, threads,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s, mean ± std), collision ratio,
-    steps and wall time per scenario. Episode k of a scenario runs with seed + k, so
-    any episode can be run again alone. A progress bar goes to stderr."""
+    steps and wall time per scenario, with 95 % bootstrap confidence intervals over the
+    episodes (fixed seed). Episode k of a scenario runs with seed + k, so any episode
+    can be run again alone. A progress bar with an ETA goes to stderr. --json prints
+    every episode too (seed, outcome, steps, collisions, captures), the step limit and
+    the terl-rt and policy versions."""
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
     info = policy_info(policy)
@@ -72,10 +127,14 @@ def eval_command(
         if log is not None:
             log.close()
 
+    if csv_path:
+        write_csv(Path(csv_path), results, info)
     if as_json:
         click.echo(json.dumps({
-            "policy": policy_json(info),
-            "scenarios": [result.to_dict() for result in results],
+            "terl_rt": terl_rt_version(),
+            "policy": policy_version(info),
+            "seed": seed,
+            "scenarios": [result.to_dict(per_episode=True) for result in results],
         }))
         return
     click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
@@ -84,3 +143,5 @@ def eval_command(
         click.echo(_row(result))
     if log is not None:
         click.echo(f"log: {log.path} ({log.episodes_written} episodes)")
+    if csv_path:
+        click.echo(f"csv: {csv_path} ({sum(r.episodes for r in results)} episodes)")

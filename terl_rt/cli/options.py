@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.resources
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -17,6 +18,10 @@ from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 
 DEFAULT_POLICY = Path("exported") / "terl.onnx"
 """The default policy, relative to the repository checkout (or the working directory)."""
+PACKAGED_POLICY = ("terl_rt.policy", "default/terl.onnx")
+"""(package, resource) of the copy of the default policy installed with terl-rt: what an
+installed terl-rt uses away from a checkout (tests/test_package.py keeps it identical to
+exported/terl.onnx)."""
 
 
 class BadInput(click.ClickException):
@@ -30,13 +35,27 @@ def _scenario(ctx: click.Context, param: click.Parameter, value: str | None) -> 
     return None if value is None else Scenario.preset(value)
 
 
+def packaged_policy_path() -> Path | None:
+    """The default policy installed inside the terl_rt package, None when it is absent."""
+    package, resource = PACKAGED_POLICY
+    try:
+        path = importlib.resources.files(package).joinpath(resource)
+    except ModuleNotFoundError:
+        return None
+    # Installed packages are plain folders (setuptools does not zip them): a real path.
+    return Path(str(path)) if path.is_file() else None
+
+
 def default_policy_path() -> Path:
     """exported/terl.onnx of the checkout terl_rt was imported from, else of the working
-    directory; BadInput when neither exists."""
+    directory, else the copy installed with the package; BadInput when none exists."""
     checkout = Path(terl_rt.__file__).resolve().parents[1] / DEFAULT_POLICY
     for candidate in (checkout, Path.cwd() / DEFAULT_POLICY):
         if candidate.is_file():
             return candidate
+    packaged = packaged_policy_path()
+    if packaged is not None:
+        return packaged
     raise BadInput(f"no policy at {DEFAULT_POLICY} yet; pass --policy")
 
 
@@ -84,7 +103,7 @@ def evaluate_with_progress(
     for scenario in scenarios:
         with click.progressbar(
             length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
-            show_pos=True,
+            show_pos=True, show_eta=True,
         ) as bar:
             results.append(evaluate_policy(
                 policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
@@ -103,7 +122,7 @@ scenarios_option = click.option(
 )
 scenario_file_option = click.option(
     "--scenario-file", type=str, default=None, metavar="FILE",
-    help="A JSON scenario file (world.md section 12) instead of presets.",
+    help="A JSON scenario file (docs/world.md section 12) instead of presets.",
 )
 suite_option = click.option(
     "--suite", type=click.Choice(["paper"]), default=None,
@@ -117,7 +136,7 @@ json_option = click.option(
 )
 policy_option = click.option(
     "--policy", "policy_path", type=str, default=None, metavar="PATH",
-    help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout].",
+    help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
 )
 threads_option = click.option(
     "--threads", type=click.IntRange(min=1), default=None,

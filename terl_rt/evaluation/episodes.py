@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
+from terl_rt.evaluation.stats import episode_intervals
 from terl_rt.logs.format import StepRecord
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, policy_info
@@ -53,21 +54,57 @@ class ScenarioResult:
     """s: wall-clock time of the whole evaluation."""
     per_episode: tuple[EpisodeMetrics, ...]
 
+    def ci95(self) -> dict[str, tuple[float, float]]:
+        """95 % bootstrap intervals (fixed seed) of the success rate, mean travel time (s)
+        and mean collision ratio over the episodes (terl_rt.evaluation.stats)."""
+        return episode_intervals(self.per_episode)
+
+    def episode_rows(self) -> list[dict]:
+        """One row per episode: index, seed, outcome (success, too_few_pursuers or
+        step_limit), steps, travel time, collisions (pursuers), collision ratio and
+        captures (evaders encircled)."""
+        return [
+            {
+                "episode": k,
+                "seed": self.seed + k,
+                "outcome": episode_outcome(m, self.max_steps),
+                "success": m.success,
+                "steps": m.steps,
+                "travel_time_s": m.travel_time_s,
+                "collisions": m.pursuers_collided,
+                "collision_ratio": m.collision_ratio,
+                "captures": m.evaders_encircled,
+            }
+            for k, m in enumerate(self.per_episode)
+        ]
+
     def to_dict(self, per_episode: bool = False) -> dict:
-        """The JSON row of `terl-rt eval --json`; `per_episode` adds every episode's metrics."""
+        """The JSON row of `terl-rt eval --json`; `per_episode` adds every episode's row
+        (`episode_rows`)."""
         row = {
             "name": self.name,
             "episodes": self.episodes,
+            "seed": self.seed,
+            "max_steps": self.max_steps,
             "success_rate": self.success_rate,
             "travel_time_s_mean": self.travel_time_s_mean,
             "travel_time_s_std": self.travel_time_s_std,
             "collision_ratio_mean": self.collision_ratio_mean,
             "steps_mean": self.steps_mean,
+            "ci95": {name: list(interval) for name, interval in self.ci95().items()},
             "wall_s": self.wall_s,
         }
         if per_episode:
-            row["per_episode"] = [m.to_dict() for m in self.per_episode]
+            row["per_episode"] = self.episode_rows()
         return row
+
+
+def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
+    """How an episode ended: "success" (every evader encircled), "too_few_pursuers"
+    (fewer than 3 left) or "step_limit"."""
+    if metrics.success:
+        return "success"
+    return "step_limit" if metrics.steps >= max_steps else "too_few_pursuers"
 
 
 def run_episode(

@@ -15,12 +15,13 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
 from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.stats import CI_METRICS, format_interval, mean_intervals
 from terl_rt.evaluation.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
 from terl_rt.sim.scenario import PRESETS
@@ -57,9 +58,15 @@ class GroupSummary:
     travel_time_s_mean: float
     """s: mean of the presets' mean travel times."""
     collision_ratio_mean: float
+    ci95: dict = field(default_factory=dict)
+    """95 % bootstrap intervals of the three means (terl_rt.evaluation.stats.mean_intervals):
+    success_rate, travel_time_s, collision_ratio -> (low, high); NaN without episodes."""
 
     def to_dict(self) -> dict:
-        return {**asdict(self), "presets": list(self.presets)}
+        return {
+            **asdict(self), "presets": list(self.presets),
+            "ci95": {name: list(interval) for name, interval in self.ci95.items()},
+        }
 
 
 @dataclass(frozen=True)
@@ -96,6 +103,10 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
             success_rate=_mean(r.success_rate for r in members),
             travel_time_s_mean=_mean(r.travel_time_s_mean for r in members),
             collision_ratio_mean=_mean(r.collision_ratio_mean for r in members),
+            ci95=(
+                mean_intervals([r.per_episode for r in members])
+                if all(r.per_episode for r in members) else dict.fromkeys(CI_METRICS, (math.nan, math.nan))
+            ),
         ))
     return summaries
 
@@ -209,7 +220,8 @@ def render_markdown(
         "",
         "The paper reports one number per scale group, not per preset: the paper's TERL row for "
         "the preset's group stands beside each preset. Travel time is mean ± standard deviation "
-        "over the episodes.",
+        "over the episodes; brackets hold 95 % confidence intervals (bootstrap over the episodes, "
+        "fixed seed), which at 20 episodes are wide.",
         "",
         "| preset | group | episodes | success | travel time (s) | collision ratio "
         "| paper TERL success | paper TERL travel time (s) | paper TERL collision ratio |",
@@ -218,9 +230,11 @@ def render_markdown(
     for r in results:
         group = scale_group(r.name)
         paper = _paper_cells(group)
+        ci = r.ci95()
         lines.append(
-            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f} "
-            f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f} | {r.collision_ratio_mean:.3f} | {paper} |"
+            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{_ci(ci, 'success_rate', 2)} "
+            f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f}{_ci(ci, 'travel_time_s', 1)} "
+            f"| {r.collision_ratio_mean:.3f}{_ci(ci, 'collision_ratio', 3)} | {paper} |"
         )
 
     lines += [
@@ -228,7 +242,8 @@ def render_markdown(
         "## Per scale group",
         "",
         "This policy's numbers are the mean over the group's evaluated presets, each preset "
-        "weighing the same; the paper's are its TERL row for the group.",
+        "weighing the same, with 95 % bootstrap intervals (episodes resampled within each preset); "
+        "the paper's are its TERL row for the group.",
         "",
         "| group | presets | success | paper TERL | travel time (s) | paper TERL | collision ratio | paper TERL |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
@@ -236,9 +251,10 @@ def render_markdown(
     for s in group_summaries(results):
         paper = TERL_BY_GROUP[s.group]
         lines.append(
-            f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f} | {paper.success_rate:.2f} "
-            f"| {s.travel_time_s_mean:.1f} | {paper.travel_time_s:.2f} "
-            f"| {s.collision_ratio_mean:.3f} | {paper.collision_ratio:.2f} |"
+            f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f}{_ci(s.ci95, 'success_rate', 2)} "
+            f"| {paper.success_rate:.2f} "
+            f"| {s.travel_time_s_mean:.1f}{_ci(s.ci95, 'travel_time_s', 1)} | {paper.travel_time_s:.2f} "
+            f"| {s.collision_ratio_mean:.3f}{_ci(s.ci95, 'collision_ratio', 3)} | {paper.collision_ratio:.2f} |"
         )
 
     cc = next((r for r in results if scale_group(r.name) == "CC"), None)
@@ -397,6 +413,14 @@ def write_report(
 
 
 # --- helpers ------------------------------------------------------------------------
+
+
+def _ci(intervals: Mapping, name: str, digits: int) -> str:
+    """' [low, high]' of intervals[name], or nothing when it is unknown (no episodes kept)."""
+    interval = intervals.get(name)
+    if interval is None or any(math.isnan(v) for v in interval):
+        return ""
+    return " " + format_interval(interval, digits)
 
 
 def _mean(values) -> float:

@@ -12,14 +12,23 @@ steps of an episode, so each message replaces the previous one entity by entity:
   orange clockwise, blue counter-clockwise.
 
 Units are the world's (m, rad); the scene lies in the z = 0 plane of frame `world`.
-`SCENE_UPDATE_SCHEMA` is the JSON Schema of the message, written out from
-Foxglove's published field list (foxglove.SceneUpdate and the primitives it holds).
+
+Foxglove keeps every entity it was sent until it is deleted, so each update deletes
+what is gone: the first scene of an episode starts with a deletion of type ALL (the
+previous episode may have had more robots, obstacles or vortices), and a later one
+deletes by id any entity of the previous scene it no longer holds (`previous_ids`).
+
+`SCENE_UPDATE_SCHEMA` is the JSON Schema of the message written into logs, written
+out from Foxglove's published field list; `official_scene_update_schema()` derives the
+schema from Foxglove's own published definition (the `foxglove-schemas-protobuf`
+package, in the dev extra), against which the tests check every logged scene and this
+hand-written copy.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -275,12 +284,15 @@ def scene_update(
     robot_radius: float,
     core_radius: float,
     status: str = "",
+    previous_ids: Iterable[str] | None = None,
 ) -> dict:
     """The scene of one step as a foxglove.SceneUpdate JSON object.
 
     state: a `Simulator.state()` dict (m, rad); arena (W, H) in m; time_ns the
     message's log time (ns); robot_radius and core_radius in m; status a line of
-    text shown above the arena.
+    text shown above the arena. previous_ids: the entity ids of the scene before in
+    the same episode, whose missing ones are deleted by id; None for the first scene
+    of an episode, which deletes every entity on the topic first (type ALL).
     """
     stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
     width, height = arena
@@ -343,4 +355,81 @@ def scene_update(
             }],
             arrows=[_arrow(x + ring, y, tangent, 1.6, kind, z=0.1)],
         ))
-    return {"deletions": [], "entities": entities}
+    return {"deletions": _deletions(stamp, previous_ids, entities), "entities": entities}
+
+
+DELETE_MATCHING_ID = 0
+DELETE_ALL = 1
+"""foxglove.SceneEntityDeletion types."""
+
+
+def _deletions(stamp: dict, previous_ids: Iterable[str] | None, entities: list[dict]) -> list[dict]:
+    """Deletions that go before `entities`: everything (type ALL) at an episode's first
+    scene, else the ids of the previous scene that `entities` no longer holds. Foxglove
+    applies a message's deletions before its entities, to entities stamped earlier."""
+    if previous_ids is None:
+        return [{"timestamp": stamp, "type": DELETE_ALL, "id": ""}]
+    present = {entity["id"] for entity in entities}
+    return [
+        {"timestamp": stamp, "type": DELETE_MATCHING_ID, "id": entity_id}
+        for entity_id in previous_ids if entity_id not in present
+    ]
+
+
+def entity_ids(update: Mapping) -> list[str]:
+    """The ids of the entities a SceneUpdate JSON object adds or replaces."""
+    return [entity["id"] for entity in update["entities"]]
+
+
+# --- Foxglove's own definition ------------------------------------------------------
+
+_PROTO_SCALARS = {
+    "TYPE_DOUBLE": {"type": "number"}, "TYPE_FLOAT": {"type": "number"},
+    "TYPE_INT32": {"type": "integer"}, "TYPE_INT64": {"type": "integer"},
+    "TYPE_SINT32": {"type": "integer"}, "TYPE_SINT64": {"type": "integer"},
+    "TYPE_SFIXED32": {"type": "integer"}, "TYPE_SFIXED64": {"type": "integer"},
+    "TYPE_UINT32": {"type": "integer", "minimum": 0}, "TYPE_UINT64": {"type": "integer", "minimum": 0},
+    "TYPE_FIXED32": {"type": "integer", "minimum": 0}, "TYPE_FIXED64": {"type": "integer", "minimum": 0},
+    "TYPE_BOOL": {"type": "boolean"}, "TYPE_STRING": {"type": "string"},
+    "TYPE_BYTES": {"type": "string", "contentEncoding": "base64"},
+}
+
+
+def official_scene_update_schema(strict: bool = True) -> dict:
+    """JSON Schema of foxglove.SceneUpdate derived from Foxglove's published definition
+    (`foxglove_schemas_protobuf`; raises ImportError without it), mapped to JSON the way
+    Foxglove's JSON encoding does: times and durations as {sec, nsec}, enums as their
+    numbers, bytes as base64 strings. strict: no property beyond the definition's."""
+    from google.protobuf.descriptor import FieldDescriptor
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    type_names = {value: name for name, value in vars(FieldDescriptor).items() if name.startswith("TYPE_")}
+
+    def time(signed: bool) -> dict:
+        sec = {"type": "integer"} if signed else {"type": "integer", "minimum": 0}
+        return {
+            "type": "object", "required": ["sec", "nsec"], "additionalProperties": not strict,
+            "properties": {"sec": sec, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+        }
+
+    def message(descriptor) -> dict:
+        if descriptor.full_name == "google.protobuf.Timestamp":
+            return time(signed=False)
+        if descriptor.full_name == "google.protobuf.Duration":
+            return time(signed=True)
+        properties = {}
+        for field in descriptor.fields:
+            if field.message_type is not None:
+                item = message(field.message_type)
+            elif field.enum_type is not None:
+                item = {"enum": [value.number for value in field.enum_type.values]}
+            else:
+                item = dict(_PROTO_SCALARS[type_names[field.type]])
+            repeated = field.is_repeated if hasattr(field, "is_repeated") else field.label == FieldDescriptor.LABEL_REPEATED
+            properties[field.name] = {"type": "array", "items": item} if repeated else item
+        return {
+            "title": descriptor.full_name, "type": "object", "properties": properties,
+            "additionalProperties": not strict,
+        }
+
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **message(SceneUpdate.DESCRIPTOR)}

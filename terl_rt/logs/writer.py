@@ -36,7 +36,7 @@ from terl_rt.logs.format import (
     StepRecord,
     encode,
 )
-from terl_rt.logs.foxglove import scene_update
+from terl_rt.logs.foxglove import entity_ids, scene_update
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.state import LOGGED_FIELDS
@@ -81,6 +81,8 @@ class _OpenEpisode:
     offset_ns: int
     step_ns: int
     last_ns: int
+    scene_ids: list[str] | None = None
+    """entity ids of the last /world scene written (None before the first)."""
 
 
 def _events(record: StepRecord) -> list[dict]:
@@ -196,9 +198,11 @@ class EpisodeLogWriter:
             f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
             f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"
         )
-        messages = [(TOPIC_WORLD, scene_update(
+        scene = scene_update(
             state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
-        ))]
+            previous_ids=None if record.step == 0 else episode.scene_ids,
+        )
+        messages = [(TOPIC_WORLD, scene)]
         info = record.info
         if info is not None:
             messages.append((TOPIC_ACTIONS, {
@@ -238,6 +242,7 @@ class EpisodeLogWriter:
                 self._sequence[topic] += 1
             self._mcap.flush()
             self._step_pending = False
+        episode.scene_ids = entity_ids(scene)
 
     def end_episode(self, metrics: EpisodeMetrics) -> None:
         """Close the current episode with its final metrics."""

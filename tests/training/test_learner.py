@@ -132,6 +132,7 @@ def records(run) -> list[dict]:
     return [json.loads(line) for line in (run / METRICS_FILE).read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
     run = tmp_path / "run"
     train(tiny(), run, show_progress=False)
@@ -153,6 +154,7 @@ def test_snapshot_score_ranks_success_then_collisions_and_time():
     assert snapshot_score([good], config) > snapshot_score([slow], config) > snapshot_score([failing], config)
 
 
+@pytest.mark.slow
 def test_best_snapshot_is_kept_and_logged(tmp_path):
     run = tmp_path / "run"
     counters = train(tiny(snapshot_frequency=160), run, show_progress=False)

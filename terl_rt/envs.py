@@ -1,0 +1,215 @@
+"""The world as a PettingZoo `ParallelEnv` (the `pettingzoo` extra: pettingzoo, gymnasium).
+
+    from terl_rt.envs import parallel_env
+    env = parallel_env("small-15", seed=0)
+    observations, infos = env.reset(seed=0)
+    while env.agents:
+        actions = {agent: env.action_space(agent).sample() for agent in env.agents}
+        observations, rewards, terminations, truncations, infos = env.step(actions)
+
+Agents are `pursuer_0` .. `pursuer_{N-1}`. Each observes a Dict of the ONNX contract's
+groups (docs/policy.md section 3): `ego` [4], `teammates` [5, 7], `evaders` [E, 7],
+`obstacles` [5, 5] (float32) and `mask` [1 + 5 + E + 5] (MultiBinary, bool values), and
+acts with one of 9 discrete actions. A pursuer that collides is terminated and leaves
+`agents`; when the task ends (every evader encircled, or fewer than 3 pursuers left)
+every remaining pursuer is terminated; the scenario's step limit truncates them.
+`infos[agent]` holds the reward terms of the step, the pursuer's index and, at the end,
+the episode's metrics.
+
+The wrapper holds a one-environment `terl_rt.sim.world.World` and only translates
+between its arrays and PettingZoo's dicts: the rules live in the world alone, and the
+batched `World` stays the fast path for many environments at once. Same scenario, seed
+and actions give the same episode as `Simulator(scenario, seed)`.
+"""
+
+from __future__ import annotations
+
+import functools
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+try:
+    from gymnasium import spaces
+    from pettingzoo import ParallelEnv
+except ImportError as error:  # pragma: no cover - exercised without the extra
+    raise ImportError(
+        "terl_rt.envs needs the pettingzoo extra: pip install -e '.[pettingzoo]' (from the terl-rt checkout)"
+    ) from error
+
+from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
+from terl_rt.sim.evader import EvaderPolicy
+from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.observation import OBSTACLE_SLOTS, TEAMMATE_SLOTS, Observation
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.state import snapshot
+from terl_rt.sim.world import World
+
+RENDER_MODES = ("rgb_array",)
+
+
+def parallel_env(
+    scenario: Scenario | str = "small-15",
+    seed: int | None = None,
+    render_mode: str | None = None,
+    evader_policy: EvaderPolicy | None = None,
+    max_steps: int | None = None,
+    render_size: int = 480,
+) -> TerlParallelEnv:
+    """A PettingZoo ParallelEnv of `scenario` (a Scenario or a preset name).
+
+    seed: the episode stream's seed (None: 0) until `reset(seed=...)` picks another;
+    max_steps overrides the scenario's step limit; render_mode "rgb_array" makes
+    `render()` return an [H, W, 3] uint8 frame `render_size` px wide.
+    """
+    return TerlParallelEnv(scenario, seed, render_mode, evader_policy, max_steps, render_size)
+
+
+class TerlParallelEnv(ParallelEnv):
+    """See the module docstring. Build it with `parallel_env(...)`."""
+
+    metadata = {"name": "terl_encirclement_v0", "render_modes": list(RENDER_MODES), "render_fps": 2}
+
+    def __init__(
+        self,
+        scenario: Scenario | str,
+        seed: int | None = None,
+        render_mode: str | None = None,
+        evader_policy: EvaderPolicy | None = None,
+        max_steps: int | None = None,
+        render_size: int = 480,
+    ) -> None:
+        if isinstance(scenario, str):
+            scenario = Scenario.preset(scenario)
+        if max_steps is not None:
+            scenario = scenario.replace(max_steps=int(max_steps))
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        self.scenario = scenario
+        self.render_mode = render_mode
+        self.render_size = int(render_size)
+        self.possible_agents = [f"pursuer_{i}" for i in range(scenario.pursuers)]
+        self.agents: list[str] = []
+        self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
+        self._world = World(scenario, num_envs=1, seed=0 if seed is None else int(seed), evader_policy=evader_policy)
+        self._seed = 0 if seed is None else int(seed)
+        self._episodes = 0
+        self._history: list[dict[str, np.ndarray]] = []
+        slots = scenario.evader_slots
+        self._observation_space = spaces.Dict({
+            "ego": spaces.Box(-np.inf, np.inf, (4,), np.float32),
+            "teammates": spaces.Box(-np.inf, np.inf, (TEAMMATE_SLOTS, 7), np.float32),
+            "evaders": spaces.Box(-np.inf, np.inf, (slots, 7), np.float32),
+            "obstacles": spaces.Box(-np.inf, np.inf, (OBSTACLE_SLOTS, 5), np.float32),
+            "mask": spaces.MultiBinary(1 + TEAMMATE_SLOTS + slots + OBSTACLE_SLOTS),
+        })
+        self._action_space = spaces.Discrete(NUM_PURSUER_ACTIONS)
+        self._observation_spaces = {agent: self._observation_space for agent in self.possible_agents}
+        self._action_spaces = {agent: spaces.Discrete(NUM_PURSUER_ACTIONS) for agent in self.possible_agents}
+
+    # ------------------------------------------------------------------ spaces
+    def observation_space(self, agent: str) -> spaces.Dict:
+        return self._observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        return self._action_spaces[agent]
+
+    @property
+    def world(self) -> World:
+        """The one-environment World underneath (read its `state`; do not step it)."""
+        return self._world
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode: the next of the stream, or the first of `seed`'s stream."""
+        if seed is not None:
+            self._seed, self._episodes = int(seed), 0
+        observation = self._world.reset(seed=None if seed is None else int(seed))
+        self._episodes += 1
+        self.agents = list(self.possible_agents)
+        self._history = [snapshot(self._world.state, 0)] if self.render_mode else []
+        observations = {agent: self._observe(observation, i) for agent, i in self._index.items()}
+        infos = {agent: {"pursuer_index": i} for agent, i in self._index.items()}
+        return observations, infos
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        """One decision step (0.5 s) for the live agents; returns observations, rewards,
+        terminations, truncations and infos of the agents that were live before it."""
+        if not self.agents:
+            raise RuntimeError("step: the episode ended (no live agents); call reset()")
+        live = list(self.agents)
+        missing = [agent for agent in live if agent not in actions]
+        if missing:
+            raise ValueError(f"step: no action for live agents {missing}")
+        unknown = [agent for agent in actions if agent not in self._index]
+        if unknown:
+            raise ValueError(f"step: unknown agents {unknown}")
+        chosen = np.zeros((1, self.scenario.pursuers), np.int64)
+        for agent in live:
+            chosen[0, self._index[agent]] = int(actions[agent])
+        observation, result = self._world.step(chosen)
+        if self.render_mode:
+            self._history.append(snapshot(self._world.state, 0))
+
+        ended = bool(result.terminated[0])
+        truncated_all = bool(result.truncated[0])
+        metrics = self._world.metrics(0) if ended or truncated_all else None
+        observations, rewards, terminations, truncations, infos = {}, {}, {}, {}, {}
+        for agent in live:
+            i = self._index[agent]
+            observations[agent] = self._observe(observation, i)
+            rewards[agent] = float(result.reward[0, i])
+            terminations[agent] = ended or bool(result.collided[0, i])
+            truncations[agent] = truncated_all and not terminations[agent]
+            info: dict[str, Any] = {
+                "pursuer_index": i,
+                "reward_terms": {name: float(result.reward_terms[0, i, k]) for k, name in enumerate(REWARD_TERMS)},
+                "collided": bool(result.collided[0, i]),
+                "target": int(result.pursuer_target[0, i]),
+            }
+            if metrics is not None:
+                info["metrics"] = metrics.to_dict()
+            infos[agent] = info
+        self.agents = [agent for agent in live if not (terminations[agent] or truncations[agent])]
+        return observations, rewards, terminations, truncations, infos
+
+    def metrics(self) -> EpisodeMetrics:
+        """Success, travel time, collision ratio and counts of the episode so far."""
+        return self._world.metrics(0)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Copies of the world's arrays, as `Simulator.state()`."""
+        if self._world.state is None:
+            raise RuntimeError("state: call reset() first")
+        return snapshot(self._world.state, 0)
+
+    # ------------------------------------------------------------------ render
+    def render(self) -> np.ndarray | None:
+        """The current frame as an [H, W, 3] uint8 array (render_mode "rgb_array"), drawn
+        as `terl-rt render` draws a logged episode; None without a render mode."""
+        if self.render_mode is None:
+            return None
+        if not self._history:
+            raise RuntimeError("render: call reset() first")
+        from terl_rt.logs.render import draw_state  # Pillow; imported only when drawing
+
+        finished = not self.agents and len(self._history) > 1
+        episode = SimpleNamespace(
+            scenario=self.scenario, number=self._episodes - 1, seed=self._seed,
+            metrics=self._world.metrics(0) if finished else None,
+        )
+        return np.asarray(draw_state(self._history, len(self._history) - 1, episode, self.render_size, final=finished))
+
+    def close(self) -> None:
+        self._history = []
+
+    def _observe(self, observation: Observation, i: int) -> dict[str, np.ndarray]:
+        return {
+            "ego": observation.ego[0, i],
+            "teammates": observation.teammates[0, i],
+            "evaders": observation.evaders[0, i],
+            "obstacles": observation.obstacles[0, i],
+            "mask": observation.mask[0, i],
+        }

@@ -1,0 +1,89 @@
+"""terl-rt as an installed package: it stands alone, away from the checkout."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from terl_rt import Scenario
+from terl_rt.cli.options import packaged_policy_path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_packaged_default_policy_is_the_exported_one():
+    """One policy, two places: exported/ (what users see) and the package (what installs)."""
+    packaged = packaged_policy_path()
+    assert packaged is not None
+    assert packaged.read_bytes() == (ROOT / "exported" / "terl.onnx").read_bytes()
+    assert packaged.with_suffix(".md").read_bytes() == (ROOT / "exported" / "terl.md").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    """The wheel of this checkout installed (not editable) into a folder of its own."""
+    folder = tmp_path_factory.mktemp("wheel")
+    # Build from a copy of what a source distribution holds, so the build leaves nothing
+    # (build/, *.egg-info) in the checkout and no stale build output slips in.
+    source = folder / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
+    shutil.copytree(ROOT / "terl_rt", source / "terl_rt", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "training", source / "training", ignore=shutil.ignore_patterns("__pycache__"))
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", folder / "dist", source],
+        capture_output=True, text=True,
+    )
+    if build.returncode != 0:
+        pytest.skip(f"cannot build a wheel here: {build.stderr.strip()[-300:]}")
+    wheel = next((folder / "dist").glob("terl_rt-*.whl"))
+    target = folder / "site"
+    with zipfile.ZipFile(wheel) as archive:
+        archive.extractall(target)
+    return target
+
+
+def test_the_wheel_holds_the_runtime_and_its_policy_but_no_training_module(installed):
+    top_level = {path.name for path in installed.iterdir() if not path.name.endswith(".dist-info")}
+    assert top_level == {"terl_rt"}, top_level
+    assert (installed / "terl_rt" / "policy" / "default" / "terl.onnx").is_file()
+    assert (installed / "terl_rt" / "policy" / "default" / "terl.md").is_file()
+
+
+def test_the_installed_terl_rt_evaluates_from_another_folder(installed, tmp_path):
+    code = (
+        "import sys, terl_rt; from terl_rt.cli.main import cli\n"
+        "print('from', terl_rt.__file__, file=sys.stderr)\n"
+        "cli(['eval', '--episodes', '1', '--max-steps', '5', '--scenario', 'small-11', '--json'])"
+    )
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert f"from {installed}" in run.stderr  # the installed copy, not the checkout
+    result = json.loads(run.stdout)
+    assert Path(result["policy"]["path"]).is_relative_to(installed)
+    assert result["scenarios"][0]["name"] == Scenario.preset("small-11").name
+
+
+def test_the_docs_the_code_cites_are_in_the_repository():
+    for name in ("world.md", "policy.md"):
+        assert (ROOT / "docs" / name).is_file()
+    for path in [ROOT / "README.md", *(ROOT / "terl_rt").rglob("*.py")]:
+        assert "shared/spec" not in path.read_text(), path
+
+
+def test_the_scenario_file_example_of_world_md_loads(tmp_path):
+    text = (ROOT / "docs" / "world.md").read_text()
+    example = text.split("## 12. Scenario files")[1].split("```json")[1].split("```")[0]
+    path = tmp_path / "world.json"
+    path.write_text(example)
+    scenario = Scenario.from_file(path)
+    assert scenario.name == "my-world" and scenario.pursuers == 3

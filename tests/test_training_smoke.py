@@ -1,0 +1,51 @@
+"""A quick end-to-end training run for CI: train, checkpoint, resume, export, act.
+
+The long training tests (tests/test_training_loop.py, tests/training/test_learner.py)
+are marked slow; this one keeps the whole path exercised in the "not slow" suite in a
+few seconds: a tiny network, a few hundred environment steps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from terl_rt import Scenario, Simulator
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from training.__main__ import main
+from training.checkpoint import read_counters
+from training.config import Config
+from training.train import METRICS_FILE
+
+
+def smoke_config(**changes) -> Config:
+    return Config(
+        model="terl", hidden=16, layers=1, heads=2, total_steps=320, num_envs=4, batch_size=32,
+        buffer_size=5_000, learning_starts=80, target_network_frequency=160,
+        eval_frequency=320, eval_episodes=1, eval_max_steps=10, snapshot_frequency=0,
+        log_frequency=160, checkpoint_frequency=160,
+    ).replace(**changes)
+
+
+def test_train_resume_export_and_act_end_to_end(tmp_path):
+    config_file = tmp_path / "smoke.json"
+    smoke_config().to_file(config_file)
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"]) == 0
+    first = read_counters(out)
+    assert first.env_step == 320 and first.updates > 0
+
+    assert main(["train", "--resume", str(out), "--total-steps", "400", "--quiet", "--threads", "1"]) == 0
+    second = read_counters(out)
+    assert second.env_step == 400 and second.updates > first.updates
+    kinds = [json.loads(line)["kind"] for line in (out / METRICS_FILE).read_text().splitlines()]
+    assert "resume" in kinds and kinds[-1] == "train"
+
+    onnx_path = tmp_path / "smoke.onnx"
+    assert main(["export", str(out), "-o", str(onnx_path)]) == 0
+    policy = OnnxPolicy(onnx_path)
+    assert policy.metadata["terl.training_steps"] == "400"
+    simulator = Simulator(Scenario.preset("small-11"), seed=0)
+    actions = policy.act(simulator.reset())
+    assert actions.shape == (11,) and np.all((actions >= 0) & (actions < 9))
+    simulator.step(actions)
