@@ -123,8 +123,8 @@ def test_saved_buffer_loads_back_oldest_first(tmp_path):
 def tiny(**changes) -> Config:
     return Config(
         model="terl", hidden=16, layers=1, heads=2, total_steps=480, num_envs=8, buffer_size=20_000,
-        learning_starts=160, target_network_frequency=160, eval_frequency=0, log_frequency=160,
-        checkpoint_frequency=240, snapshot_episodes=1, eval_max_steps=20,
+        batch_size=32, learning_starts=160, target_network_frequency=160, eval_frequency=0, log_frequency=160,
+        checkpoint_frequency=240, snapshot_episodes=1, snapshot_preset="small-11", eval_max_steps=20,
     ).replace(**changes)
 
 
@@ -132,7 +132,6 @@ def records(run) -> list[dict]:
     return [json.loads(line) for line in (run / METRICS_FILE).read_text().splitlines()]
 
 
-@pytest.mark.slow
 def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
     run = tmp_path / "run"
     train(tiny(), run, show_progress=False)
@@ -154,13 +153,12 @@ def test_snapshot_score_ranks_success_then_collisions_and_time():
     assert snapshot_score([good], config) > snapshot_score([slow], config) > snapshot_score([failing], config)
 
 
-@pytest.mark.slow
 def test_best_snapshot_is_kept_and_logged(tmp_path):
     run = tmp_path / "run"
     counters = train(tiny(snapshot_frequency=160), run, show_progress=False)
     snapshots = [r for r in records(run) if r["kind"] == "snapshot"]
     assert [r["env_step"] for r in snapshots] == [160, 320, 480]
-    assert [e["scenario"] for e in snapshots[0]["evaluations"]] == ["curriculum-2", "medium-48"]  # stage 2 from 137
+    assert [e["scenario"] for e in snapshots[0]["evaluations"]] == ["curriculum-2", "small-11"]  # stage 2 from 137
     best = max(snapshots, key=lambda r: r["score"])
     first_best = next(r for r in snapshots if r["score"] == best["score"])
     assert counters.best_step == first_best["env_step"] and counters.best_score == pytest.approx(best["score"])
