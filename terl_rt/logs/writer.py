@@ -254,6 +254,16 @@ class EpisodeLogWriter:
         self._next_offset_ns = episode.last_ns + _GAP_NS
         self._episode = None
 
+    def abandon_episode(self) -> None:
+        """Leave the current episode without its end record (it reads back as cut off) so
+        that the next one can begin: what an interrupted run does with an unfinished episode."""
+        self._check_open()
+        episode = self._episode
+        if episode is None:
+            raise RuntimeError("abandon_episode: no episode is open")
+        self._next_offset_ns = episode.last_ns + _GAP_NS
+        self._episode = None
+
     def close(self) -> None:
         """Write the summary and footer and close the file (an open episode stays unended).
 
