@@ -24,6 +24,7 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
+from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import policy_info
@@ -54,16 +55,24 @@ def _row(result: ScenarioResult) -> str:
 @log_option
 @json_option
 @threads_option
+@force_option
 def eval_command(
-    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json, threads
+    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json, threads,
+    force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s, mean ± std), collision ratio,
     steps and wall time per scenario. Episode k of a scenario runs with seed + k, so
-    any episode can be run again alone. A progress bar goes to stderr."""
+    any episode can be run again alone. A progress bar goes to stderr. An existing
+    --log file is replaced only with --force (and never when it is the policy or
+    scenario file), at the first step."""
+    if log_path:
+        check_output(log_path, "--log", [("--policy", policy_path), ("--scenario-file", scenario_file)], force)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    if log_path:  # the default policy too
+        check_output(log_path, "--log", [("--policy", policy.path)], force)
     info = policy_info(policy)
-    log = EpisodeLogWriter(Path(log_path), info) if log_path else None
+    log = EpisodeLogWriter(Path(log_path), info, staged=True) if log_path else None
     try:
         results = evaluate_with_progress(
             policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, log=log, threads=threads,
