@@ -131,6 +131,8 @@ class EpisodeLogReader:
             raise FileNotFoundError(2, "no episode log at this path", str(self.path))
         if self.path.is_dir():
             raise EpisodeLogError(f"{self.path}: is a directory, not an episode log")
+        if not self.path.is_file():
+            raise EpisodeLogError(f"{self.path}: not a regular file (a device or a pipe), not an episode log")
         self.size = self.path.stat().st_size
         self.policy: dict[str, Any] = {}
         """The policy the episodes ran: name, sha256, path, metadata."""
