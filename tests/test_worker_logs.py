@@ -175,3 +175,10 @@ def test_a_policy_with_non_finite_outputs_stops_the_run_naming_policy_and_step(t
     errors = [line for line in result.stderr.splitlines() if line.startswith("Error:")]
     assert len(errors) == 1 and "Traceback" not in result.output
     assert "nan.onnx" in errors[0] and "step 1" in errors[0] and "non-finite q_values" in errors[0]
+
+
+def test_a_worker_whose_parent_died_while_it_started_ends_at_once():
+    # The worker is told its parent's pid; a different parent (it was re-parented) ends it.
+    code = "from terl_rt.evaluation.episodes import _die_with_parent; _die_with_parent(-1); print('alive')"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 1 and "alive" not in result.stdout

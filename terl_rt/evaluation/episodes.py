@@ -145,10 +145,10 @@ class _Stopped(Exception):
     """The parent asked the workers to stop (it was interrupted)."""
 
 
-def _die_with_parent() -> None:
-    """End this worker when its parent process dies, even by SIGKILL: the kernel's
-    parent-death signal where there is one (Linux), and a watchdog thread everywhere."""
-    parent = os.getppid()
+def _die_with_parent(parent: int) -> None:
+    """End this worker when its parent process (pid `parent`, the evaluating process) dies,
+    even by SIGKILL: the kernel's parent-death signal where there is one (Linux), and a
+    watchdog thread everywhere. A parent that died while the worker started ends it at once."""
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)
@@ -167,12 +167,12 @@ def _die_with_parent() -> None:
     threading.Thread(target=watch, name="terl-parent-watchdog", daemon=True).start()
 
 
-def _init_worker(path: str, threads: int | None, sha256: str, stop, channel) -> None:
+def _init_worker(path: str, threads: int | None, sha256: str, stop, channel, parent: int) -> None:
     global _worker_policy, _worker_stop, _worker_channel
     # Ctrl-C reaches the whole process group: the parent handles it and sets `stop`,
     # which the workers check every step (killing them could leave a result half sent).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _die_with_parent()
+    _die_with_parent(parent)
     _worker_stop = stop
     _worker_channel = channel
     _worker_policy = OnnxPolicy(path, threads=threads)
@@ -348,7 +348,8 @@ def _evaluate_in_workers(
     context = get_context("spawn")
     stop = context.Event()
     messages, sending = context.Pipe(duplex=False)
-    init = (str(policy.path), 1 if threads is None else threads, policy.sha256, stop, (sending, context.Lock()))
+    init = (str(policy.path), 1 if threads is None else threads, policy.sha256, stop, (sending, context.Lock()),
+            os.getpid())
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=init)
     writer = _InOrderLog(scenario, seed, log, finished)
     futures = []
@@ -368,6 +369,7 @@ def _evaluate_in_workers(
                 for future in futures:
                     if future.done() and future.exception() is not None:
                         raise future.exception()
+        pool.shutdown()
     except BaseException:
         # Interrupted or failed: the workers stop within a step; what they sent is logged.
         stop.set()
@@ -380,14 +382,12 @@ def _evaluate_in_workers(
                 writer.flush_waiting()
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
-                if previous is not None:
-                    signal.signal(signal.SIGINT, previous)
         raise
-    pool.shutdown()
-    if previous is not None:
-        signal.signal(signal.SIGINT, previous)
-    messages.close()
-    sending.close()
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+        messages.close()
+        sending.close()
 
 
 def _drain(messages, futures, writer: _InOrderLog, limit_s: float = 10.0) -> None:
