@@ -198,7 +198,7 @@ def _bad_inputs(files, log) -> dict[str, tuple]:
         "scenario file not JSON": (("eval", "--policy", policy, "--scenario-file", bad_json), "not valid JSON"),
         "scenario file unknown field": (("eval", "--policy", policy, "--scenario-file", unknown_field), "speed: unknown field"),
         "missing scenario file": (("eval", "--policy", policy, "--scenario-file", folder / "none.json"), "no such scenario file"),
-        "log in a missing folder": (("eval", "--policy", policy, "--episodes", "1", "--log", folder / "no" / "x.mcap"), "No such file"),
+        "log under a file": (("eval", "--policy", policy, "--episodes", "1", "--log", policy / "x.mcap"), "cannot make its folder"),
         "info on noise": (("info", folder / "noise.onnx"), "not a readable ONNX model"),
         "bench unknown scenario": (("bench", "policy", "--policy", policy, "--scenario", "nope"), "unknown scenario 'nope'"),
         "missing log": (("replay", folder / "absent.mcap"), "no episode log"),
@@ -214,7 +214,7 @@ def _bad_inputs(files, log) -> dict[str, tuple]:
 BAD_INPUTS = [
     "missing policy", "malformed policy", "contract-breaking policy", "unknown scenario",
     "two scenario sources", "scenario file not JSON", "scenario file unknown field", "missing scenario file",
-    "log in a missing folder", "info on noise", "bench unknown scenario", "missing log", "truncated log",
+    "log under a file", "info on noise", "bench unknown scenario", "missing log", "truncated log",
     "corrupt log", "log that is a policy", "absent episode", "render absent episode", "render unknown format",
 ]
 

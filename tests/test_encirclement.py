@@ -100,10 +100,10 @@ def test_collision_is_checked_after_everyone_moved():
 
 
 def test_evaders_are_never_deactivated_by_contact():
-    # pursuer 0 sits 1 m from evader 0; evaders 0 and 1 overlap each other
+    # pursuer 0 and evader 0 drive head-on from 2.5 m; evader 1 runs into evader 0 from behind
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], far_row(0), far_row(1), far_row(2)],
-        evaders=[[31.0, 30.0, 0.0, 0.0], [31.5, 30.5, 0.0, 0.0]],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], far_row(0), far_row(1), far_row(2)],
+        evaders=[[32.5, 30.0, math.pi, 2.0], [35.0, 30.0, math.pi, 3.5]],
     )
     world = World(scenario, evader_policy=ConstantEvader(7))
     world.reset()
@@ -114,7 +114,7 @@ def test_evaders_are_never_deactivated_by_contact():
 
 def test_collided_pursuer_stops_moving():
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 2.0], [31.0, 30.0, 0.0, 2.0], far_row(0), far_row(1), far_row(2)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0), far_row(1), far_row(2)],
         evaders=[[90.0, 60.0, 0.0, 0.0]],
     )
     world = World(scenario, evader_policy=ConstantEvader(7))
@@ -303,10 +303,11 @@ def test_captured_evader_no_longer_collides():
 
 
 def test_pursuer_that_collides_in_the_step_still_helps_encircle():
-    # Even ring p0/p1/p2 (6 m); p3 sits 2.1 m beyond p2, 8.1 m from the evader (no helper), so
-    # p2 and p3 collide in this step. p2 still counts in this step's test (world.md section 6).
-    pursuers = ring(EVADER[:2], 6.0, [0, 120, 240])
-    pursuers += ring(EVADER[:2], 8.1, [240]) + [far_row(0), far_row(1)]
+    # Even ring p0/p1/p2 (6 m); p3 sits 2.5 m beyond p2, 8.5 m from the evader (no helper), and p2
+    # drives out to it at 2 m/s, so p2 and p3 collide in this step. p2 still counts in this
+    # step's test (world.md section 6).
+    pursuers = ring(EVADER[:2], 6.0, [0, 120]) + ring(EVADER[:2], 6.0, [240], theta=math.radians(240), speed=2.0)
+    pursuers += ring(EVADER[:2], 8.5, [240]) + [far_row(0), far_row(1)]
     scenario = initial_scenario(pursuers=pursuers, evaders=[EVADER, [100.0, 100.0, 0.0, 0.0]], evader_slots=4)
     world = World(scenario, evader_policy=ConstantEvader(7))
     world.reset()

@@ -334,9 +334,9 @@ def test_world_observations_have_batch_shapes_and_dtypes():
 
 
 def test_simulator_observation_has_one_row_per_active_pursuer():
-    # pursuers 0 and 1 overlap (1 m apart < 2r = 2.236 m): both collide in the first step
+    # pursuers 0 and 1 drive head-on from 2.5 m (2r = 2.236 m): both collide in the first step
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], [31.0, 30.0, 0.0, 0.0], far_row(0), far_row(1), far_row(2)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0), far_row(1), far_row(2)],
         evaders=[[80.0, 30.0, 0.0, 0.0]],
         evader_slots=3,
     )

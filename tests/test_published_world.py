@@ -100,10 +100,11 @@ def test_observations_agree_with_the_recorded_observations(path):
 
 # ---------------------------------------------------------------- section 6: timing of a collision
 def crash_world():
-    """Evader E at rest at (50, 50). p0 and p1 at 6 m (bearings 0, 120) and p2 at 4.8 m (bearing 240)
-    hold still; p2 is 2.1 m from an obstacle (contact below r + 1.05 = 2.168 m): it collides in step 1,
-    close to E. p3, p4 far away."""
-    pursuers = ring([50.0, 50.0], 6.0, [0, 120]) + ring([50.0, 50.0], 4.8, [240]) + [far_row(0), far_row(1)]
+    """Evader E at rest at (50, 50). p0 and p1 at 6 m (bearings 0, 120) hold still; p2 starts at
+    4.5 m (bearing 240), 2.4 m from an obstacle (clear of contact at r + 1.05 = 2.168 m), and drives
+    out at 2 m/s: it collides in step 1, close to E. p3, p4 far away."""
+    pursuers = ring([50.0, 50.0], 6.0, [0, 120]) + ring([50.0, 50.0], 4.5, [240], theta=math.radians(240), speed=2.0)
+    pursuers += [far_row(0), far_row(1)]
     obstacle = ring([50.0, 50.0], 6.9, [240])[0][:2] + [1.05]
     scenario = initial_scenario(pursuers=pursuers, evaders=[[50.0, 50.0, 0.0, 0.0], [100.0, 10.0, 0.0, 0.0]],
                                 obstacles=[obstacle], evader_slots=4)
@@ -141,6 +142,7 @@ def test_evaders_decide_the_next_step_with_the_pursuer_that_collided_in_view():
     world.step(ACTIONS)
     state, geometry = world.state, world.geometry
     state.evader_vel[0, 0] = [math.cos(math.radians(240)), math.sin(math.radians(240))]
+    state.pursuer_vel[0, 2] = 0.0  # p2 drove into the obstacle: held still, E closes in on it
     hidden = state.copy()
     hidden.pursuer_perceived[0, 2] = False
     with_p2, without_p2 = _repulsion(state, geometry, DEFAULT)[0, 0], _repulsion(hidden, geometry, DEFAULT)[0, 0]

@@ -199,9 +199,9 @@ def test_uneven_ring_completion_decays_with_gap_std():
 
 # ---------------------------------------------------------------- in the world
 def test_world_reward_is_the_sum_of_its_terms_and_zero_after_collision():
-    # pursuers 0 and 1 overlap and collide in step 1; in step 2 they get nothing
+    # pursuers 0 and 1 drive head-on from 2.5 m and collide in step 1; in step 2 they get nothing
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], [31.0, 30.0, 0.0, 0.0], far_row(0), far_row(1), far_row(2)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0), far_row(1), far_row(2)],
         evaders=[[70.0, 30.0, 0.0, 0.0]],
     )
     world = World(scenario, evader_policy=ConstantEvader(7))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -42,9 +43,10 @@ def ring_scenario(**fields) -> Scenario:
 
 
 def crash_scenario(**fields) -> Scenario:
-    """Pursuers 0 and 1 overlap (1 m apart) and collide at the first step; 1 of 3 remains."""
+    """Pursuers 0 and 1 start 2.5 m apart (just clear of each other) driving head-on at 2 m/s
+    and collide at the first step; 1 of 3 remains."""
     return initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], [31.0, 30.0, 0.0, 0.0], far_row(0)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0)],
         evaders=[[90.0, 60.0, 0.0, 0.0]],
         **fields,
     )
@@ -270,7 +272,7 @@ def test_invalid_world_actions_raise_naming_the_shape():
 
 def test_actions_of_collided_pursuers_are_ignored():
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], [31.0, 30.0, 0.0, 0.0], far_row(0), far_row(1), far_row(2)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0), far_row(1), far_row(2)],
         evaders=[[90.0, 60.0, 0.0, 0.0]],
     )
     sim = Simulator(scenario, evader_policy=idle_evader())
@@ -319,7 +321,7 @@ def test_simulator_state_is_a_copy():
 
 def test_metrics_count_time_collisions_and_captures():
     scenario = initial_scenario(
-        pursuers=[[30.0, 30.0, 0.0, 0.0], [31.0, 30.0, 0.0, 0.0], far_row(0), far_row(1), far_row(2)],
+        pursuers=[[30.0, 30.0, 0.0, 2.0], [32.5, 30.0, math.pi, 2.0], far_row(0), far_row(1), far_row(2)],
         evaders=[[90.0, 60.0, 0.0, 0.0]],
     )
     sim = Simulator(scenario, evader_policy=idle_evader())

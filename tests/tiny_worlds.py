@@ -3,8 +3,8 @@
 `capture_scenario()` is built so that the first step has both kinds of event:
 three pursuers stand round evader 0 at 5 m, 120 degrees apart (within d_encircle = 8,
 gaps 2pi/3 <= pi and max/min gap 1 <= kappa = 3: encircled after one step), and
-pursuers 3 and 4 start 1.0 m apart at rest, less than two robot radii (2.24 m), so
-they collide in step 1. Pursuers 5 and 6 and evader 1 are far off, so the episode
+pursuers 3 and 4 start 2.5 m apart (just over two robot radii, 2.24 m) driving
+head-on at 2 m/s, so they collide in step 1 whatever they do. Pursuers 5 and 6 and evader 1 are far off, so the episode
 goes on (5 active pursuers >= 3) until its step limit.
 """
 
@@ -27,8 +27,8 @@ def capture_scenario(max_steps: int = 12) -> Scenario:
         "max_steps": max_steps,
         "initial_state": {
             "pursuers": ring + [
-                [20.0, 20.0, 0.0, 0.0],
-                [21.0, 20.0, math.pi, 0.0],
+                [20.0, 20.0, 0.0, 2.0],
+                [22.5, 20.0, math.pi, 2.0],
                 [100.0, 20.0, 1.0, 1.0],
                 [20.0, 100.0, 2.0, 1.5],
             ],

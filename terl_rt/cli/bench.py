@@ -18,10 +18,10 @@ from terl_rt.cli.options import (
 from terl_rt.evaluation.speed import SCALING_PURSUERS, policy_speed, scaling_scenario, simulator_speed
 
 steps_option = click.option(
-    "--steps", type=click.IntRange(min=1), default=500, show_default=True, help="Timed steps."
+    "--steps", type=click.IntRange(min=1, max=10_000_000), default=500, show_default=True, help="Timed steps."
 )
 envs_option = click.option(
-    "--envs", "num_envs", type=click.IntRange(min=1), default=1, show_default=True,
+    "--envs", "num_envs", type=click.IntRange(min=1, max=4096), default=1, show_default=True,
     help="Environments stepped together (a batch).",
 )
 

@@ -26,6 +26,7 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
+from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.stats import format_interval
 from terl_rt.logs.writer import EpisodeLogWriter
@@ -105,20 +106,30 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
     help="Also write one row per episode (seed, outcome, steps, collisions, captures) to this CSV file.",
 )
 @threads_option
+@force_option
 def eval_command(
     policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json,
-    csv_path, threads,
+    csv_path, threads, force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s, mean ± std), collision ratio,
     steps and wall time per scenario, with 95 % bootstrap confidence intervals over the
     episodes (fixed seed). Episode k of a scenario runs with seed + k, so any episode
     can be run again alone. A progress bar with an ETA goes to stderr. --json prints
     every episode too (seed, outcome, steps, collisions, captures), the step limit and
-    the terl-rt and policy versions."""
+    the terl-rt and policy versions. An existing --log or --csv file is replaced only
+    with --force (and never when it is the policy or scenario file); the log at the
+    first step."""
+    inputs = [("--policy", policy_path), ("--scenario-file", scenario_file)]
+    if log_path:
+        check_output(log_path, "--log", inputs, force)
+    if csv_path:
+        check_output(csv_path, "--csv", inputs + [("--log", log_path)], force)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    if log_path:  # the default policy too
+        check_output(log_path, "--log", [("--policy", policy.path)], force)
     info = policy_info(policy)
-    log = EpisodeLogWriter(Path(log_path), info) if log_path else None
+    log = EpisodeLogWriter(Path(log_path), info, staged=True) if log_path else None
     try:
         results = evaluate_with_progress(
             policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, log=log, threads=threads,

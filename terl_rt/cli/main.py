@@ -19,10 +19,11 @@ from terl_rt.policy.contract import ContractError
 from terl_rt.sim.scenario import ScenarioError
 
 USER_ERRORS = (
-    ScenarioError, ContractError, EpisodeLogError, RenderError,
-    FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError,
+    ScenarioError, ContractError, EpisodeLogError, RenderError, OSError, MemoryError,
 )
-"""Exceptions that mean bad input: one line on stderr and exit status 2 (traceback with --debug)."""
+"""Exceptions that mean bad input or a machine that cannot do what was asked (a missing,
+unreadable or unwritable file, a full disk, too little memory): one line on stderr and
+exit status 2 (traceback with --debug)."""
 
 
 class TerlGroup(click.Group):
@@ -31,11 +32,35 @@ class TerlGroup(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
+        except click.UsageError as err:
+            # A bad option value or an unknown option: one line naming the command's help.
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            where = f" (see {err.ctx.command_path} -h)" if err.ctx is not None else ""
+            click.echo(f"Error: {one_line(click.ClickException(err.format_message()))}{where}", err=True)
+            ctx.exit(2)
         except USER_ERRORS as err:
             if ctx.obj and ctx.obj.get("debug"):
                 raise
-            click.echo(f"Error: {' '.join(str(err).split())}", err=True)
+            click.echo(f"Error: {one_line(err)}", err=True)
             ctx.exit(2)
+
+
+MAX_ERROR_CHARS = 600
+"""An error line longer than this is cut (a message never echoes a huge value)."""
+
+
+def one_line(err: BaseException) -> str:
+    """The message of `err` on one line, at most MAX_ERROR_CHARS long."""
+    if isinstance(err, MemoryError):
+        text = f"not enough memory for this run ({str(err) or 'MemoryError'})"
+    elif isinstance(err, OSError) and err.strerror and not isinstance(err, (FileNotFoundError, IsADirectoryError)):
+        where = f"{err.filename}: " if err.filename else ""
+        text = f"{where}{err.strerror}" if where else f"{err.strerror} ({type(err).__name__}, errno {err.errno})"
+    else:
+        text = str(err) or type(err).__name__
+    text = " ".join(text.split())
+    return text if len(text) <= MAX_ERROR_CHARS else text[: MAX_ERROR_CHARS - 3] + "..."
 
 
 @click.group(cls=TerlGroup, context_settings={"help_option_names": ["-h", "--help"]})

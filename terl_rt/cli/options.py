@@ -14,7 +14,7 @@ import terl_rt
 from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
-from terl_rt.sim.scenario import PAPER_SUITE, Scenario
+from terl_rt.sim.scenario import PAPER_SUITE, SCENARIO_LIMITS, Scenario
 
 DEFAULT_POLICY = Path("exported") / "terl.onnx"
 """The default policy, relative to the repository checkout (or the working directory)."""
@@ -22,6 +22,18 @@ PACKAGED_POLICY = ("terl_rt.policy", "default/terl.onnx")
 """(package, resource) of the copy of the default policy installed with terl-rt: what an
 installed terl-rt uses away from a checkout (tests/test_package.py keeps it identical to
 exported/terl.onnx)."""
+
+
+MAX_SEED = 2**62
+"""largest --seed: seed + k stays a 64-bit integer for any number of episodes."""
+MAX_THREADS = 256
+"""largest --threads."""
+MAX_WORKERS = 64
+"""largest --workers (each worker holds its own onnxruntime session)."""
+MAX_EPISODES = 1_000_000
+"""largest --episodes."""
+MAX_STEPS = SCENARIO_LIMITS["max_steps"]
+"""largest --max-steps: the scenario field's own limit."""
 
 
 class BadInput(click.ClickException):
@@ -129,7 +141,8 @@ suite_option = click.option(
     help="A scenario suite: paper = the 10 evaluation presets of Table III.",
 )
 seed_option = click.option(
-    "--seed", type=int, default=0, show_default=True, help="Random seed of the episodes."
+    "--seed", type=click.IntRange(min=0, max=MAX_SEED), default=0, show_default=True,
+    help="Random seed of the episodes (0 .. 2^62).",
 )
 json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object instead of a table."
@@ -139,19 +152,19 @@ policy_option = click.option(
     help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
 )
 threads_option = click.option(
-    "--threads", type=click.IntRange(min=1), default=None,
+    "--threads", type=click.IntRange(min=1, max=MAX_THREADS), default=None,
     help="onnxruntime intra-op threads [default: onnxruntime's choice; 1 per worker].",
 )
 episodes_option = click.option(
-    "--episodes", type=click.IntRange(min=1), default=20, show_default=True,
+    "--episodes", type=click.IntRange(min=1, max=MAX_EPISODES), default=20, show_default=True,
     help="Episodes per scenario; episode k runs with seed + k.",
 )
 max_steps_option = click.option(
-    "--max-steps", type=click.IntRange(min=1), default=None,
+    "--max-steps", type=click.IntRange(min=1, max=MAX_STEPS), default=None,
     help="Step limit per episode (0.5 s steps) [default: the scenario's, 1000].",
 )
 workers_option = click.option(
-    "--workers", type=click.IntRange(min=1), default=1, show_default=True,
+    "--workers", type=click.IntRange(min=1, max=MAX_WORKERS), default=1, show_default=True,
     help="Processes to spread the episodes over (results are the same as with 1).",
 )
 log_option = click.option(

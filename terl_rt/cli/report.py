@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import shlex
+import shutil
+from pathlib import Path
 import textwrap
 
 import click
@@ -22,7 +25,18 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.evaluation.report import MatplotlibMissing, goal_checks, group_summaries, require_matplotlib, where_it_stands, write_report
+from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.evaluation.report import (
+    FIGURE_NAME,
+    MARKDOWN_NAME,
+    MatplotlibMissing,
+    ReportPaths,
+    goal_checks,
+    group_summaries,
+    require_matplotlib,
+    where_it_stands,
+    write_report,
+)
 from terl_rt.policy.onnx_policy import policy_info
 
 
@@ -35,6 +49,7 @@ def command_line(
     workers: int,
     threads: int | None,
     out: str,
+    force: bool = False,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -50,6 +65,8 @@ def command_line(
     if threads is not None:
         words += ["--threads", str(threads)]
     words += ["--out", out]
+    if force:
+        words.append("--force")
     return shlex.join(words)
 
 
@@ -69,24 +86,41 @@ def command_line(
     help="Folder to write results.md and results.png to (made if missing).",
 )
 @json_option
-def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json) -> None:
+@force_option
+def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     write DIR/results.md (a row per preset and per scale group beside the paper's TERL
     numbers, and which of the paper's goals are met) and DIR/results.png (success rate,
     travel time and collision ratio against the number of pursuers). The figure needs
-    matplotlib: pip install -e '.[report]'. A progress bar goes to stderr."""
+    matplotlib: pip install -e '.[report]'. A progress bar goes to stderr. Existing
+    results files (the shipped docs/results.* included) are replaced only with --force,
+    and only once both new files are complete."""
     try:
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
         raise BadInput(str(error)) from error
+    out_dir = Path(out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise BadInput(f"--out {out} is a file; name a folder")
+    for name in (MARKDOWN_NAME, FIGURE_NAME):
+        check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names, None, None if scenario_names else "paper")
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    for name in (MARKDOWN_NAME, FIGURE_NAME):
+        check_output(out_dir / name, "--out", [("--policy", policy.path)], force)
     results = evaluate_with_progress(
         policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
     )
-    command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out)
+    command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, force)
     info = policy_info(policy)
-    paths = write_report(results, info, out, command)
+    staging = out_dir / f".results.{os.getpid()}.partial"
+    try:
+        written = write_report(results, info, staging, command)
+        paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
+        os.replace(written.figure, paths.figure)
+        os.replace(written.markdown, paths.markdown)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
     if as_json:
         click.echo(json.dumps({

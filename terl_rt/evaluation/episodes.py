@@ -6,18 +6,28 @@ observation in one call; `terl_rt.sim.rollout.Rollout` scatters its greedy actio
 the [N] action vector (collided pursuers get 0, which the simulator ignores).
 With `workers > 1` the episodes are spread over processes (spawn), each reopening the
 policy file; results (and logs) are the same as with one process, in episode order.
+Workers send each step to the parent as it is taken; the parent writes the lowest
+unfinished episode as its steps arrive and holds later episodes' steps in memory until
+their turn (a log keeps each episode's records together). Interrupted or failed, it
+writes what it holds before closing the log; killed (SIGKILL), what it held is lost.
+Workers end with their parent, even when it is killed.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
+import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
+
+import numpy as np
 
 from terl_rt.evaluation.stats import episode_intervals
 from terl_rt.logs.format import StepRecord
@@ -29,6 +39,26 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.simulator import StepInfo
 from terl_rt.sim.state import snapshot
 from terl_rt.sim.world import World
+
+
+class PolicyOutputError(ContractError):
+    """A policy returned a non-finite q-value or target weight during a run (a user error:
+    the policy file is at fault, not the runtime)."""
+
+
+def check_finite_output(policy: OnnxPolicy, q_values: np.ndarray, target_weights: np.ndarray | None,
+                        step: int, seed: int) -> None:
+    """Raise PolicyOutputError naming the policy, the step and the seed when an output is NaN or Inf."""
+    for name, values in (("q_values", q_values), ("target_weights", target_weights)):
+        if values is None or np.isfinite(values).all():
+            continue
+        row = int(np.argwhere(~np.isfinite(values))[0][0])
+        bad = values.reshape(len(values), -1)[row]
+        bad = bad[~np.isfinite(bad)][0]
+        raise PolicyOutputError(
+            f"policy {policy.name} ({policy.path}) output a non-finite {name} ({bad}) at step {step} "
+            f"of the episode with seed {seed} (decision row {row}); the run is stopped"
+        )
 
 Progress = Callable[[int, EpisodeMetrics], None]
 """Called after each finished episode with its index and metrics (in episode order)."""
@@ -125,6 +155,7 @@ def run_episode(
     while True:
         turn = rollout.turn()
         output = policy.evaluate(turn.observation.rows(turn.rows))
+        check_finite_output(policy, output.q_values, output.target_weights, int(world.state.steps[0]) + 1, seed)
         step = rollout.step(output.actions)
         if on_step is not None:
             on_step(StepRecord(
@@ -139,34 +170,73 @@ def run_episode(
 
 _worker_policy: OnnxPolicy | None = None
 _worker_stop = None
+_worker_channel = None
+"""(connection, lock): the pipe end every worker sends on, one message at a time."""
+
+_PR_SET_PDEATHSIG = 1
+_WATCHDOG_S = 0.5
+"""s: how often a worker checks that its parent is still alive."""
 
 
 class _Stopped(Exception):
     """The parent asked the workers to stop (it was interrupted)."""
 
 
-def _init_worker(path: str, threads: int | None, sha256: str, stop) -> None:
-    global _worker_policy, _worker_stop
+def _die_with_parent(parent: int) -> None:
+    """End this worker when its parent process (pid `parent`, the evaluating process) dies,
+    even by SIGKILL: the kernel's parent-death signal where there is one (Linux), and a
+    watchdog thread everywhere. A parent that died while the worker started ends it at once."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl: the watchdog alone
+            pass
+    if os.getppid() != parent:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(_WATCHDOG_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="terl-parent-watchdog", daemon=True).start()
+
+
+def _init_worker(path: str, threads: int | None, sha256: str, stop, channel, parent: int) -> None:
+    global _worker_policy, _worker_stop, _worker_channel
     # Ctrl-C reaches the whole process group: the parent handles it and sets `stop`,
     # which the workers check every step (killing them could leave a result half sent).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent(parent)
     _worker_stop = stop
+    _worker_channel = channel
     _worker_policy = OnnxPolicy(path, threads=threads)
     if _worker_policy.sha256 != sha256:
         raise ContractError(f"{path}: the policy file changed on disk during the evaluation")
 
 
-def _worker_episode(scenario: Scenario, seed: int, record: bool) -> tuple[EpisodeMetrics, list[StepRecord]]:
-    records: list[StepRecord] = []
+def _worker_episode(scenario: Scenario, seed: int, index: int, record: bool) -> None:
+    """Run episode `index`, sending ("step", index, StepRecord) for every step (when
+    `record`) and then ("end", index, metrics) to the parent as they happen."""
 
     def on_step(step: StepRecord) -> None:
         if _worker_stop.is_set():
             raise _Stopped
         if record:
-            records.append(step)
+            _send(("step", index, step))
 
     metrics = run_episode(_worker_policy, scenario, seed, on_step)
-    return metrics, records
+    _send(("end", index, metrics))
+
+
+def _send(message: tuple) -> None:
+    # Sent synchronously (no feeder thread): when the episode's future is done, every
+    # message it sent is in the pipe, and a worker never exits with a message unsent.
+    connection, lock = _worker_channel
+    with lock:
+        connection.send(message)
 
 
 # --- evaluation ---------------------------------------------------------------------
@@ -233,6 +303,73 @@ def evaluate_policy(
     )
 
 
+class _InOrderLog:
+    """Writes the episodes that workers stream, in episode order.
+
+    A log holds each episode's records together, so only one episode is written as its
+    steps arrive (the lowest that has not ended); the steps of later episodes wait in
+    memory until it ends. An interrupted run writes what waits before it closes the log.
+    """
+
+    def __init__(self, scenario: Scenario, seed: int, log: EpisodeLogWriter | None,
+                 finished: Callable[[int, EpisodeMetrics], None]):
+        self.scenario, self.seed, self.log, self.finished = scenario, seed, log, finished
+        self.current = 0
+        """the episode being written (every lower one is done)."""
+        self.begun = False
+        self.waiting: dict[int, list[StepRecord]] = {}
+        self.ended: dict[int, EpisodeMetrics] = {}
+
+    def receive(self, kind: str, index: int, payload) -> None:
+        if index != self.current:
+            if kind == "step":
+                self.waiting.setdefault(index, []).append(payload)
+            else:
+                self.ended[index] = payload
+            return
+        if kind == "step":
+            self._write(payload)
+            return
+        self._end(payload)
+        while self.current in self.waiting or self.current in self.ended:
+            for record in self.waiting.pop(self.current, []):
+                self._write(record)
+            if self.current not in self.ended:
+                break
+            self._end(self.ended.pop(self.current))
+
+    def flush_waiting(self) -> None:
+        """Write every waiting step, in episode order; the episodes that did not end stay unended."""
+        for index in sorted(set(self.waiting) | set(self.ended)):
+            if self.log is None:
+                break
+            if self.begun:
+                self.log.abandon_episode()
+            self.current, self.begun = index, False
+            for record in self.waiting.pop(index, []):
+                self._write(record)
+            if index in self.ended:
+                self._end(self.ended.pop(index), report=False)
+
+    def _write(self, record: StepRecord) -> None:
+        if self.log is None:
+            return
+        if not self.begun:
+            self.log.begin_episode(self.scenario, self.seed + self.current, self.current)
+            self.begun = True
+        self.log.write_step(record)
+
+    def _end(self, metrics: EpisodeMetrics, report: bool = True) -> None:
+        if self.log is not None:
+            if not self.begun:
+                self.log.begin_episode(self.scenario, self.seed + self.current, self.current)
+            self.log.end_episode(metrics)
+        self.begun = False
+        if report:
+            self.finished(self.current, metrics)
+        self.current += 1
+
+
 def _evaluate_in_workers(
     policy: OnnxPolicy,
     scenario: Scenario,
@@ -243,25 +380,58 @@ def _evaluate_in_workers(
     log: EpisodeLogWriter | None,
     finished: Callable[[int, EpisodeMetrics], None],
 ) -> None:
-    """Run the episodes in `workers` spawned processes; log and report them in order."""
+    """Run the episodes in `workers` spawned processes that stream their steps to this one,
+    which logs them (see `_InOrderLog`) and reports the episodes in order."""
     context = get_context("spawn")
     stop = context.Event()
-    init = (str(policy.path), 1 if threads is None else threads, policy.sha256, stop)
+    messages, sending = context.Pipe(duplex=False)
+    init = (str(policy.path), 1 if threads is None else threads, policy.sha256, stop, (sending, context.Lock()),
+            os.getpid())
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=init)
+    writer = _InOrderLog(scenario, seed, log, finished)
+    futures = []
+    interrupted: list[int] = []
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C becomes a flag checked between messages: one taken off the queue is always written.
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
     try:
-        futures = [pool.submit(_worker_episode, scenario, seed + k, log is not None) for k in range(episodes)]
-        for k, future in enumerate(futures):
-            metrics, records = future.result()
-            if log is not None:
-                log.begin_episode(scenario, seed + k, k)
-                for record in records:
-                    log.write_step(record)
-                log.end_episode(metrics)
-            finished(k, metrics)
+        futures = [pool.submit(_worker_episode, scenario, seed + k, k, log is not None) for k in range(episodes)]
+        while writer.current < episodes:
+            if interrupted:
+                raise KeyboardInterrupt
+            if messages.poll(0.1):
+                writer.receive(*messages.recv())
+            else:
+                for future in futures:
+                    if future.done() and future.exception() is not None:
+                        raise future.exception()
+        pool.shutdown()
     except BaseException:
-        # Interrupted or failed: the workers stop within a step; what is logged stays logged.
+        # Interrupted or failed: the workers stop within a step; what they sent is logged.
         stop.set()
-        pool.shutdown(wait=True, cancel_futures=True)
+        for future in futures:
+            future.cancel()
+        try:
+            _drain(messages, futures, writer)
+        finally:
+            try:
+                writer.flush_waiting()
+            finally:
+                pool.shutdown(wait=True, cancel_futures=True)
         raise
-    pool.shutdown()
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+        messages.close()
+        sending.close()
 
+
+def _drain(messages, futures, writer: _InOrderLog, limit_s: float = 10.0) -> None:
+    """Take what the workers still send until each has stopped (at most `limit_s`)."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        if messages.poll(0.05):
+            writer.receive(*messages.recv())
+        elif all(future.done() for future in futures):
+            return

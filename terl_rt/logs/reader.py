@@ -1,13 +1,16 @@
 """Reading episode logs (terl_rt.logs.format), complete or cut off.
 
-The reader scans the file record by record; a file that stops inside a record, or
-without its footer, reads back up to the last complete step and says so
-(`EpisodeLogReader.problem`). Anything else that does not parse is an
-`EpisodeLogError` naming the byte offset and, where known, the episode and step.
+A complete file (one with its summary and footer) is read through the MCAP library's
+reader (`mcap.reader.make_reader`): its summary's chunk and metadata indexes, so any
+chunking and compression another tool rewrote the log with reads the same. A file cut
+off before its summary is scanned record by record by hand: it reads back up to the last
+complete step and says so (`EpisodeLogReader.problem`). Anything else that does not parse
+is an `EpisodeLogError` naming the byte offset and, where known, the episode and step.
 """
 
 from __future__ import annotations
 
+import bisect
 import io
 import json
 import os
@@ -20,7 +23,8 @@ from typing import Any
 import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, MessageIndex, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
 from terl_rt.logs.format import (
@@ -58,7 +62,8 @@ class LoggedEpisode:
     metrics: EpisodeMetrics | None
     """final metrics; None when the episode was cut off before its end."""
     chunks: tuple[tuple[int, int], ...] = field(repr=False, default=())
-    """(byte offset, record length) of each complete step chunk, step 0 first."""
+    """(byte offset, record length) of the chunks that hold its steps, in file order (in a
+    log as terl-rt writes it: one chunk per step, step 0 first)."""
 
     @property
     def complete(self) -> bool:
@@ -131,6 +136,8 @@ class EpisodeLogReader:
             raise FileNotFoundError(2, "no episode log at this path", str(self.path))
         if self.path.is_dir():
             raise EpisodeLogError(f"{self.path}: is a directory, not an episode log")
+        if not self.path.is_file():
+            raise EpisodeLogError(f"{self.path}: not a regular file (a device or a pipe), not an episode log")
         self.size = self.path.stat().st_size
         self.policy: dict[str, Any] = {}
         """The policy the episodes ran: name, sha256, path, metadata."""
@@ -143,12 +150,16 @@ class EpisodeLogReader:
         self.channels: dict[int, Channel] = {}
         self.schemas: dict[int, Schema] = {}
         self._scanned: list[dict] = []
+        self.indexed = False
+        """True when the file was read through its summary (complete), False when scanned."""
         with open(self.path, "rb") as handle:
-            self._scan(handle)
+            if not self._read_indexed(handle):
+                self._scan(handle)
         self._episodes = tuple(
             LoggedEpisode(
                 number=raw["number"], index=raw["index"], seed=raw["seed"], scenario=raw["scenario"],
-                steps=max(len(raw["chunks"]) - 1, 0), metrics=raw["metrics"], chunks=tuple(raw["chunks"]),
+                steps=max((len(raw["times"]) if self.indexed else len(raw["chunks"])) - 1, 0),
+                metrics=raw["metrics"], chunks=tuple(raw["chunks"]),
             )
             for raw in self._scanned
         )
@@ -187,6 +198,9 @@ class EpisodeLogReader:
     def steps(self, number: int) -> Iterator[LoggedStep]:
         """The steps of episode `number` in order, step 0 (after reset) first."""
         episode = self.episode(number)
+        if self.indexed:
+            yield from self._indexed_steps(number)
+            return
         with open(self.path, "rb") as handle:
             for expected, (offset, length) in enumerate(episode.chunks):
                 step = self._read_step(handle, offset, length, f"episode {number}, step {expected}")
@@ -266,6 +280,9 @@ class EpisodeLogReader:
             record = Metadata.read(ReadDataStream(io.BytesIO(body)))
         except Exception as error:  # any parse failure of a complete record is corruption
             raise self._fail(f"corrupt metadata record at byte {offset}: {error!r}") from None
+        self._on_metadata_record(offset, record)
+
+    def _on_metadata_record(self, offset: int, record: Metadata) -> None:
         data = record.metadata
         try:
             if record.name == META_LOG:
@@ -287,7 +304,8 @@ class EpisodeLogReader:
                 self._scanned.append({
                     "number": number, "index": int(data["index"]), "seed": int(data["seed"]),
                     "scenario": Scenario.from_dict(json.loads(data["scenario"])),
-                    "metrics": None, "chunks": [],
+                    "metrics": None, "chunks": [], "times": [],
+                    "start_ns": int(data["start_time_ns"]) if "start_time_ns" in data else None,
                 })
             elif record.name == META_EPISODE_END:
                 number = int(data["episode"])
@@ -343,3 +361,117 @@ class EpisodeLogReader:
         if head is None:
             raise self._fail(f"corrupt chunk at byte {offset} ({what}): it has no /state message")
         return LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages)
+
+    # --- complete files, through the MCAP library's reader and the summary's indexes
+    def _read_indexed(self, handle) -> bool:
+        """Read a complete file through its summary; False (nothing read) for a file without
+        one (cut off, never closed, or not an indexed MCAP), which is then scanned."""
+        if self.size < 2 * len(_MAGIC):
+            return False
+        handle.seek(self.size - len(_MAGIC))
+        at_end = handle.read(len(_MAGIC))
+        handle.seek(0)
+        if at_end != _MAGIC or handle.read(len(_MAGIC) + 1)[len(_MAGIC):] != bytes([Opcode.HEADER]):
+            handle.seek(0)
+            return False  # cut off, or a damaged start the scanner names
+        handle.seek(0)
+        try:
+            reader = make_reader(handle)
+            summary = reader.get_summary()
+        except Exception:  # a damaged footer or summary: the scanner says what is wrong
+            summary = None
+        if summary is None or not summary.chunk_indexes:
+            handle.seek(0)
+            return False
+        if summary.metadata_indexes:
+            for index in sorted(summary.metadata_indexes, key=lambda i: i.offset):
+                handle.seek(index.offset)
+                opcode, length = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
+                if opcode != Opcode.METADATA:
+                    raise self._fail(f"the metadata index points at byte {index.offset}, which holds no metadata record")
+                self._on_metadata(index.offset, handle.read(length))
+        else:
+            for record in reader.iter_metadata():
+                self._on_metadata_record(0, record)
+        if not self.policy:
+            raise self._fail("an MCAP file but not a terl-rt episode log (no 'terl.log' metadata record)")
+        if any(raw["start_ns"] is None for raw in self._scanned):
+            handle.seek(0)  # a log from before episodes carried their start time: scan it
+            self._scanned = []
+            self.policy = {}
+            return False
+        self.indexed = True
+        self.schemas = dict(summary.schemas)
+        self.channels = dict(summary.channels)
+        state_channels = {cid for cid, channel in self.channels.items() if channel.topic == TOPIC_STATE}
+        starts = [raw["start_ns"] for raw in self._scanned]
+        for chunk in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            times = self._state_times(handle, chunk, state_channels)
+            where = (chunk.chunk_start_offset, chunk.chunk_length - _RECORD_HEAD.size)
+            for time_ns in times:
+                number = bisect.bisect_right(starts, time_ns) - 1
+                if number < 0:
+                    raise self._fail(
+                        f"the chunk at byte {chunk.chunk_start_offset} holds a step logged before the first episode began"
+                    )
+                raw = self._scanned[number]
+                raw["times"].append(time_ns)
+                if not raw["chunks"] or raw["chunks"][-1] != where:
+                    raw["chunks"].append(where)
+        for raw in self._scanned:
+            raw["times"] = sorted(set(raw["times"]))
+        return True
+
+    def _state_times(self, handle, chunk, state_channels: set[int]) -> list[int]:
+        """Log times of the /state messages in a chunk: from its message index where the
+        file has one, else from the chunk itself."""
+        offsets = [chunk.message_index_offsets[c] for c in state_channels if c in chunk.message_index_offsets]
+        if offsets or (chunk.message_index_offsets and not state_channels & set(chunk.message_index_offsets)):
+            times = []
+            for offset in offsets:
+                handle.seek(offset)
+                opcode, length = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
+                try:
+                    if opcode != Opcode.MESSAGE_INDEX:
+                        raise ValueError(f"record type 0x{opcode:02x}")
+                    index = MessageIndex.read(ReadDataStream(io.BytesIO(handle.read(length))))
+                except Exception as error:
+                    raise self._fail(f"corrupt message index at byte {offset}: {error}") from None
+                times += [time_ns for time_ns, _ in index.records]
+            return times
+        records = self._chunk_records(
+            handle, chunk.chunk_start_offset, chunk.chunk_length - _RECORD_HEAD.size, "while listing the steps"
+        )
+        return [r.log_time for r in records if isinstance(r, Message) and r.channel_id in state_channels]
+
+    def _indexed_steps(self, number: int) -> Iterator[LoggedStep]:
+        raw = self._scanned[number]
+        low = raw["start_ns"]
+        high = self._scanned[number + 1]["start_ns"] if number + 1 < len(self._scanned) else None
+        wanted = set(raw["times"])
+        gathered: dict[int, dict[str, bytes]] = {}
+        with open(self.path, "rb") as handle:
+            for offset, length in raw["chunks"]:
+                what = f"episode {number}, step {len(gathered)}"
+                for record in self._chunk_records(handle, offset, length, what):
+                    if not isinstance(record, Message) or record.log_time < low:
+                        continue
+                    if (high is not None and record.log_time >= high) or record.log_time not in wanted:
+                        continue
+                    channel = self.channels.get(record.channel_id)
+                    if channel is None:
+                        raise self._fail(f"corrupt chunk at byte {offset} ({what}): message on unknown channel {record.channel_id}")
+                    gathered.setdefault(record.log_time, {})[channel.topic] = record.data
+        for expected, time_ns in enumerate(sorted(gathered)):
+            messages = gathered[time_ns]
+            try:
+                head = json.loads(messages[TOPIC_STATE])
+                step = LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages)
+            except (KeyError, ValueError, TypeError) as error:
+                raise self._fail(f"the /state message of episode {number} at log time {time_ns} is corrupt ({error!r})") from None
+            if step.episode != number or step.step != expected:
+                raise self._fail(
+                    f"log time {time_ns} holds episode {step.episode} step {step.step}, "
+                    f"expected episode {number} step {expected}; the file is corrupt"
+                )
+            yield step

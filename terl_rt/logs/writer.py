@@ -115,14 +115,23 @@ class EpisodeLogWriter:
     Call `begin_episode`, then `write_step` for step 0 (after reset) and every step,
     then `end_episode`; `close()` (or a `with` block) writes the summary. Each step is
     on disk when `write_step` returns.
+
+    staged: write under a temporary name beside `path` (`staging_path`) and rename it over
+    `path` at the first step, so that a run that fails before its first step leaves an
+    earlier file at `path` untouched (closed without a step, the temporary file is removed).
     """
 
-    def __init__(self, path: str | os.PathLike, policy_info: Mapping[str, Any]):
+    def __init__(self, path: str | os.PathLike, policy_info: Mapping[str, Any], staged: bool = False):
         for key in ("name", "sha256"):
             if key not in policy_info:
                 raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.policy.onnx_policy.policy_info(policy)")
         self.path = Path(path)
-        self._file = open(self.path, "wb")
+        self.staging_path: Path | None = (
+            self.path.with_name(f".{self.path.stem}.{os.getpid()}.partial{self.path.suffix}") if staged else None
+        )
+        self.steps_written = 0
+        """steps written so far, all episodes."""
+        self._file = open(self.staging_path or self.path, "wb")
         self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
         self._mcap.start(profile="", library=f"terl-rt {_version()}")
         self._channels: dict[str, int] = {}
@@ -243,6 +252,10 @@ class EpisodeLogWriter:
             self._mcap.flush()
             self._step_pending = False
         episode.scene_ids = entity_ids(scene)
+        self.steps_written += 1
+        if self.staging_path is not None:
+            os.replace(self.staging_path, self.path)
+            self.staging_path = None
 
     def end_episode(self, metrics: EpisodeMetrics) -> None:
         """Close the current episode with its final metrics."""
@@ -259,6 +272,16 @@ class EpisodeLogWriter:
         self._next_offset_ns = episode.last_ns + _GAP_NS
         self._episode = None
 
+    def abandon_episode(self) -> None:
+        """Leave the current episode without its end record (it reads back as cut off) so
+        that the next one can begin: what an interrupted run does with an unfinished episode."""
+        self._check_open()
+        episode = self._episode
+        if episode is None:
+            raise RuntimeError("abandon_episode: no episode is open")
+        self._next_offset_ns = episode.last_ns + _GAP_NS
+        self._episode = None
+
     def close(self) -> None:
         """Write the summary and footer and close the file (an open episode stays unended).
 
@@ -270,10 +293,12 @@ class EpisodeLogWriter:
             return
         self._closed = True
         try:
-            if not self._step_pending:
+            if not self._step_pending and self.staging_path is None:
                 self._mcap.finish()
         finally:
             self._file.close()
+            if self.staging_path is not None:  # no step was taken: leave `path` as it was
+                self.staging_path.unlink(missing_ok=True)
 
     def _check_open(self) -> None:
         if self._closed:

@@ -33,7 +33,7 @@ import numpy as np
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.geometry import Geometry
 from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
-from terl_rt.sim.params import WorldParams
+from terl_rt.sim.params import WorldParams, check_params
 from terl_rt.sim.state import WorldState
 
 
@@ -54,12 +54,40 @@ class Decision:
     model has no target selection."""
 
 
+MAX_ROWS = {"teammates": 1000, "evaders": 500, "obstacles": 500, "encircled": 500}
+"""Most rows `observe` takes per argument (the scenario limits): memory grows with the
+square of the entities, so larger inputs are refused with a ValueError."""
+MAX_EVADER_SLOTS = 256
+"""Largest evader_slots."""
+MAX_COORDINATE = 1e6
+"""m: largest |x| or |y| of any position."""
+MAX_SPEED = 1e3
+"""m/s: largest |vx| or |vy| of any velocity."""
+MAX_RADIUS = 100.0
+"""m: largest obstacle radius."""
+
+
+def _bounded(name: str, array: np.ndarray, columns: str, bounds: tuple[float, ...]) -> None:
+    """ValueError naming `name`, the row and the column of the first value beyond its bound."""
+    if array.size == 0:
+        return
+    over = np.abs(array) > np.asarray(bounds)[None, :]
+    if over.any():
+        row, col = (int(i) for i in np.argwhere(over)[0])
+        raise ValueError(
+            f"{name}[{row}]: {columns.split(', ')[col]} is {array[row, col]:g}; it must lie within +-{bounds[col]:g}"
+        )
+
+
 def _rows(name: str, value, width: int, columns: str) -> np.ndarray:
     """A [K, width] float64 array from rows; ValueError naming `name` when malformed."""
+    limit = MAX_ROWS[name]
+    if value is not None and hasattr(value, "__len__") and len(value) > limit:
+        raise ValueError(f"{name}: {len(value)} rows, more than the {limit} observe takes (MAX_ROWS)")
     try:
         array = np.asarray(value if value is not None else [], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected rows of {width} numbers ({columns}), got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected rows of {width} numbers ({columns}), got {_short(value)}") from None
     if array.size == 0:
         array = array.reshape(0, width)
     if array.ndim != 2 or array.shape[1] != width:
@@ -68,14 +96,21 @@ def _rows(name: str, value, width: int, columns: str) -> np.ndarray:
     if bad.any():
         row, col = (int(i) for i in np.argwhere(bad)[0])
         raise ValueError(f"{name}[{row}]: {columns.split(', ')[col]} is {array[row, col]}; every value must be finite")
+    if len(array) > limit:
+        raise ValueError(f"{name}: {len(array)} rows, more than the {limit} observe takes (MAX_ROWS)")
     return array
+
+
+def _short(value) -> str:
+    text = repr(value) if not isinstance(value, np.ndarray) else f"an array of shape {value.shape}"
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _vector(name: str, value, size: int, columns: str) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected {size} numbers ({columns}), got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name}: expected {size} numbers ({columns}), got {_short(value)}") from None
     if array.shape != (size,):
         raise ValueError(f"{name}: expected shape ({size},) ({columns}), got {array.shape}")
     if not np.isfinite(array).all():
@@ -105,21 +140,28 @@ def observe(
     (perception radius, robot radius, ...), default WorldParams(). encircled [K, 2]
     (x, y) of the evaders already encircled: nobody observes them, but as in the
     published simulator they still set the pursuit status (an evader within 18 m).
-    Raises ValueError naming the argument for wrong shapes or non-finite values.
+    Raises ValueError naming the argument for wrong shapes, non-finite values, values
+    out of bounds (positions within +-MAX_COORDINATE m, velocities within +-MAX_SPEED m/s,
+    radii in (0, MAX_RADIUS]), too many rows (MAX_ROWS), evader_slots outside
+    [1, MAX_EVADER_SLOTS] or params outside their ranges (terl_rt.sim.params.PARAM_RANGES).
     """
     params = WorldParams() if params is None else params
     if not isinstance(params, WorldParams):
         raise ValueError(f"params: expected a WorldParams or None, got {type(params).__name__}")
-    if isinstance(evader_slots, bool) or not isinstance(evader_slots, (int, np.integer)) or evader_slots < 1:
-        raise ValueError(f"evader_slots: expected a positive integer, got {evader_slots!r}")
+    problem = check_params(params)
+    if problem:
+        raise ValueError(f"params.{problem[0]}: {problem[1]}")
+    if (isinstance(evader_slots, bool) or not isinstance(evader_slots, (int, np.integer))
+            or not 1 <= evader_slots <= MAX_EVADER_SLOTS):
+        raise ValueError(f"evader_slots: expected an integer in [1, {MAX_EVADER_SLOTS}], got {_short(evader_slots)}")
     xy = _vector("ego_xy", ego_xy, 2, "x, y")
     velocity = _vector("ego_velocity", ego_velocity, 2, "vx, vy")
     try:
         heading = float(ego_heading)
-    except (TypeError, ValueError):
-        raise ValueError(f"ego_heading: expected one number (rad), got {ego_heading!r}") from None
-    if not math.isfinite(heading):
-        raise ValueError(f"ego_heading: is {heading}; it must be finite")
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"ego_heading: expected one number (rad), got {_short(ego_heading)}") from None
+    if not math.isfinite(heading) or abs(heading) > MAX_COORDINATE:
+        raise ValueError(f"ego_heading: is {heading:g}; it must be finite, within +-{MAX_COORDINATE:g} rad")
     mates = _rows("teammates", teammates, 4, "x, y, vx, vy")
     targets = _rows("evaders", evaders, 4, "x, y, vx, vy")
     discs = _rows("obstacles", obstacles, 3, "x, y, radius")
@@ -127,6 +169,12 @@ def observe(
     if (discs[:, 2] <= 0).any():
         row = int(np.flatnonzero(discs[:, 2] <= 0)[0])
         raise ValueError(f"obstacles[{row}]: radius is {discs[row, 2]}; radii must be > 0")
+    _bounded("ego_xy", xy[None], "x, y", (MAX_COORDINATE, MAX_COORDINATE))
+    _bounded("ego_velocity", velocity[None], "vx, vy", (MAX_SPEED, MAX_SPEED))
+    _bounded("teammates", mates, "x, y, vx, vy", (MAX_COORDINATE, MAX_COORDINATE, MAX_SPEED, MAX_SPEED))
+    _bounded("evaders", targets, "x, y, vx, vy", (MAX_COORDINATE, MAX_COORDINATE, MAX_SPEED, MAX_SPEED))
+    _bounded("obstacles", discs, "x, y, radius", (MAX_COORDINATE, MAX_COORDINATE, MAX_RADIUS))
+    _bounded("encircled", done, "x, y", (MAX_COORDINATE, MAX_COORDINATE))
 
     # One world, the ego as pursuer 0. Teammates' and evaders' headings follow their
     # velocity; the observation reads only the observer's heading.

@@ -54,12 +54,23 @@ _FEATURES = {spec.name: spec.dims[-1] for spec in INPUTS if spec.name != "mask"}
 # --- opening a model ---------------------------------------------------------
 
 
+MAX_POLICY_BYTES = 2**31 - 1
+"""bytes: the largest ONNX file (one protobuf message) onnxruntime can read."""
+
+
 def _read_policy_file(path: Path) -> bytes:
     """The file's bytes; FileNotFoundError / IsADirectoryError name the path."""
     if not path.exists():
         raise FileNotFoundError(errno.ENOENT, "no policy file at this path", str(path))
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "expected an ONNX policy file, got a directory", str(path))
+    if not path.is_file():
+        raise ContractError(f"{path}: not a regular file (a device or a pipe), not an ONNX policy")
+    size = path.stat().st_size
+    if size > MAX_POLICY_BYTES:
+        raise ContractError(
+            f"{path}: {size:,} bytes, larger than any ONNX policy can be ({MAX_POLICY_BYTES:,} bytes, protobuf's limit)"
+        )
     return path.read_bytes()
 
 

@@ -6,6 +6,7 @@ draws candidates in vectorised chunks: the first acceptable candidate is placed.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -15,6 +16,9 @@ from terl_rt.sim.scenario import Scenario, ScenarioError
 
 _CHUNK = 64
 """candidates drawn per rejection-sampling round."""
+PLACEMENT_TIME_LIMIT_S = 30.0
+"""s: wall-clock time one reset may spend placing entities before it fails with a
+ScenarioError (raise it here for a crowded world that needs longer)."""
 
 
 @dataclass(frozen=True)
@@ -55,9 +59,15 @@ def _place(
     Raises ScenarioError naming `field` when an entity finds no place in `tries` draws.
     """
     placed = np.zeros((0, columns))
+    deadline = time.monotonic() + PLACEMENT_TIME_LIMIT_S
     for i in range(count):
         drawn = 0
         while True:
+            if time.monotonic() > deadline:
+                raise ScenarioError(
+                    f"{field}: placing them took longer than {PLACEMENT_TIME_LIMIT_S:g} s ({why}); the world is too "
+                    "crowded (the limit is terl_rt.sim.reset.PLACEMENT_TIME_LIMIT_S)"
+                )
             if drawn >= tries:
                 raise ScenarioError(
                     f"{field}: could not place {field[:-1] if field.endswith('s') else field} {i + 1} of {count} "

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from terl_rt.sim.params import WorldParams
+from terl_rt.sim.params import WorldParams, check_param, check_params, short_repr
 from terl_rt.sim.reward import REWARD_VARIANTS
 
 
@@ -56,30 +56,34 @@ class Scenario:
 
     name: str
     arena: tuple[float, float] = (120.0, 120.0)
-    """(W, H) in m: the arena is [0, W] x [0, H]."""
+    """(W, H) in m: the arena is [0, W] x [0, H]. Valid: each side in (0, 10000], and at
+    least twice every spawn margin of `params` when reset draws the entities."""
     pursuers: int = 15
-    """N: number of pursuers."""
+    """N: number of pursuers. Valid: [params.min_active_pursuers, 1000]."""
     evaders: int = 4
-    """M: number of evaders."""
+    """M: number of evaders. Valid: [1, 500]."""
     obstacles: int = 4
-    """number of static disc obstacles."""
+    """number of static disc obstacles. Valid: [0, 500]."""
     vortices: int = 8
-    """number of Rankine vortex cores."""
+    """number of Rankine vortex cores. Valid: [0, 500]."""
     evader_slots: int = 8
-    """E: evader slots in each pursuer observation."""
+    """E: evader slots in each pursuer observation. Valid: [1, 256]."""
     max_steps: int = 1000
-    """decision steps before the episode is truncated (0.5 s each)."""
+    """decision steps before the episode is truncated (0.5 s each). Valid: [1, 1000000]."""
     min_pursuer_evader_init_dis: float = 20.0
-    """m: pursuers start more than this from every evader."""
+    """m: pursuers start more than this from every evader. Valid: [0, 10000]."""
     clear_r: float = 15.0
-    """m: start clearance between robots of a kind, and from cores and obstacles."""
+    """m: start clearance between robots of a kind, and from cores and obstacles. Valid: [0, 10000]."""
     reward: str = "paper"
     """reward variant (world.md section 9): "paper" (the paper's formulas) or "published"
     (what the published trainer optimised). Training only; evaluation metrics ignore it."""
     initial_state: InitialState | None = None
-    """explicit initial states (then the counts above are their lengths)."""
+    """explicit initial states (then the counts above are their lengths). Valid: no two
+    robots overlap (centre distance > 2 robot_radius), no robot touches an obstacle (centre
+    distance > robot_radius + obstacle radius), every entity within INITIAL_STATE_MARGIN
+    times the arena's size of the arena, speeds in [0, s_max], obstacle radii in (0, 100]."""
     params: WorldParams = field(default_factory=WorldParams)
-    """the world's constants."""
+    """the world's constants; each has its valid range in its docstring (PARAM_RANGES)."""
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -106,14 +110,32 @@ class Scenario:
 
     @staticmethod
     def from_file(path: str | Path) -> Scenario:
-        """Read a JSON scenario file; errors name the file and the field."""
+        """Read a JSON scenario file; errors name the file and the field.
+
+        The file must be a regular file of at most MAX_SCENARIO_FILE_BYTES holding one
+        JSON object without duplicate keys."""
         path = Path(path)
+        if not path.exists():
+            raise ScenarioError(f"{path}: no such scenario file")
+        if path.is_dir():
+            raise ScenarioError(f"{path}: is a folder, not a scenario file")
+        if not path.is_file():
+            raise ScenarioError(f"{path}: not a regular file (a device or a pipe), not a scenario file")
+        size = path.stat().st_size
+        if size > MAX_SCENARIO_FILE_BYTES:
+            raise ScenarioError(
+                f"{path}: {size:,} bytes, above the limit of {MAX_SCENARIO_FILE_BYTES:,} "
+                "(terl_rt.sim.scenario.MAX_SCENARIO_FILE_BYTES)"
+            )
         try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ScenarioError(f"{path}: no such scenario file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            with open(path, "rb") as handle:
+                text = handle.read(MAX_SCENARIO_FILE_BYTES + 1).decode("utf-8")
+        except UnicodeDecodeError as err:
             raise ScenarioError(f"{path}: not valid JSON: {err}") from None
+        try:
+            data = loads_json(text)
+        except ScenarioError as err:
+            raise ScenarioError(f"{path}: {err}") from None
         try:
             return _from_dict(data)
         except ScenarioError as err:
@@ -157,41 +179,68 @@ class Scenario:
 
 
 # ---------------------------------------------------------------- validation
+SCENARIO_LIMITS: dict[str, float] = {
+    "arena": 10_000.0,
+    "pursuers": 1000,
+    "evaders": 500,
+    "obstacles": 500,
+    "vortices": 500,
+    "evader_slots": 256,
+    "max_steps": 1_000_000,
+    "min_pursuer_evader_init_dis": 10_000.0,
+    "clear_r": 10_000.0,
+}
+"""Largest value of each field: they bound a world's memory and time. A limit can be
+raised here for an experiment that needs a bigger world."""
+_LOWEST = {"pursuers": 3, "evaders": 1, "obstacles": 0, "vortices": 0, "evader_slots": 1, "max_steps": 1}
+MAX_SCENARIO_FILE_BYTES = 4 * 1024 * 1024
+"""Largest scenario file `Scenario.from_file` reads (bytes)."""
+INITIAL_STATE_MARGIN = 0.5
+"""Entities of an initial_state lie within this fraction of the arena's width (height)
+outside the arena: x in [-0.5 W, 1.5 W], y in [-0.5 H, 1.5 H]."""
 _INT_FIELDS = ("pursuers", "evaders", "obstacles", "vortices", "evader_slots", "max_steps")
 _FLOAT_FIELDS = ("min_pursuer_evader_init_dis", "clear_r")
 _STATE_WIDTHS = {"pursuers": 4, "evaders": 4, "obstacles": 3, "vortices": 4}
 
 
+def _limit_hint(name: str) -> str:
+    return f"the limit terl_rt.sim.scenario.SCENARIO_LIMITS[{name!r}]; raise it there for a bigger world"
+
+
 def _validate(s: Scenario) -> None:
-    if not isinstance(s.name, str) or not s.name:
-        raise ScenarioError("name: must be a non-empty string")
-    if len(s.arena) != 2 or not all(_is_number(v) and math.isfinite(v) and v > 0 for v in s.arena):
-        raise ScenarioError(f"arena: must be [W, H] with finite positive sizes in m, got {s.arena!r}")
+    if not isinstance(s.name, str) or not s.name or len(s.name) > 200:
+        raise ScenarioError(f"name: must be a non-empty string of at most 200 characters, got {short_repr(s.name)}")
+    if not isinstance(s.params, WorldParams):
+        raise ScenarioError(f"params: must be a WorldParams, got {short_repr(s.params)}")
+    problem = check_params(s.params)
+    if problem:
+        raise ScenarioError(f"params.{problem[0]}: {problem[1]}")
+    top = SCENARIO_LIMITS["arena"]
+    if (not isinstance(s.arena, (tuple, list)) or len(s.arena) != 2
+            or not all(_is_number(v) and 0 < v <= top and math.isfinite(v) for v in s.arena)):
+        raise ScenarioError(
+            f"arena: must be [W, H] with sizes in (0, {top:g}] m ({_limit_hint('arena')}), got {short_repr(s.arena)}"
+        )
     for name in _INT_FIELDS:
         value = getattr(s, name)
+        low = s.params.min_active_pursuers if name == "pursuers" else _LOWEST[name]
+        high = SCENARIO_LIMITS[name]
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
-            raise ScenarioError(f"{name}: must be an integer, got {value!r}")
-        if value < 0:
-            raise ScenarioError(f"{name}: must be >= 0, got {value}")
-    for name in ("evaders", "evader_slots", "max_steps"):
-        if getattr(s, name) < 1:
-            raise ScenarioError(f"{name}: must be >= 1, got {getattr(s, name)}")
-    if s.pursuers < s.params.min_active_pursuers:
-        raise ScenarioError(
-            f"pursuers: an episode needs at least {s.params.min_active_pursuers}, got {s.pursuers}"
-        )
+            raise ScenarioError(f"{name}: must be an integer in [{low}, {high}], got {short_repr(value)}")
+        if value < low:
+            why = f" (params.min_active_pursuers is {low})" if name == "pursuers" else ""
+            raise ScenarioError(f"{name}: must be at least {low}{why}, got {short_repr(value)}")
+        if value > high:
+            raise ScenarioError(f"{name}: {short_repr(value)} is above {_limit_hint(name)}")
     for name in _FLOAT_FIELDS:
         value = getattr(s, name)
-        if not _is_number(value) or not math.isfinite(value) or value < 0:
-            raise ScenarioError(f"{name}: must be a finite number >= 0, got {value!r}")
-    if s.reward not in REWARD_VARIANTS:
-        raise ScenarioError(f"reward: must be one of {', '.join(map(repr, REWARD_VARIANTS))}, got {s.reward!r}")
-    if not isinstance(s.params, WorldParams):
-        raise ScenarioError("params: must be a WorldParams")
-    for name in WorldParams.field_names():
-        value = getattr(s.params, name)
-        if not _is_number(value) or not math.isfinite(value):
-            raise ScenarioError(f"params.{name}: must be a finite number, got {value!r}")
+        high = SCENARIO_LIMITS[name]
+        if not _is_number(value) or not 0 <= value <= high or (isinstance(value, float) and not math.isfinite(value)):
+            raise ScenarioError(f"{name}: must be a number in [0, {high:g}] m, got {short_repr(value)}")
+    if not isinstance(s.reward, str) or s.reward not in REWARD_VARIANTS:
+        raise ScenarioError(
+            f"reward: must be one of {', '.join(map(repr, REWARD_VARIANTS))}, got {short_repr(s.reward)}"
+        )
     p = s.params
     margins = [("evader_spawn_margin", p.evader_spawn_margin), ("pursuer_spawn_margin", p.pursuer_spawn_margin)]
     if s.obstacles and s.initial_state is None:
@@ -202,6 +251,8 @@ def _validate(s: Scenario) -> None:
                 f"arena: {s.arena[0]:g} x {s.arena[1]:g} m leaves no room inside params.{name} = {margin:g} m of every wall"
             )
     if s.initial_state is not None:
+        if not isinstance(s.initial_state, InitialState):
+            raise ScenarioError(f"initial_state: must be an InitialState, got {short_repr(s.initial_state)}")
         _validate_initial_state(s)
 
 
@@ -210,8 +261,8 @@ def _validate_initial_state(s: Scenario) -> None:
     for group, width in _STATE_WIDTHS.items():
         rows = getattr(init, group)
         where = f"initial_state.{group}"
-        if rows.ndim != 2 or rows.shape[1] != width:
-            raise ScenarioError(f"{where}: expected rows of {width} numbers, got shape {rows.shape}")
+        if not isinstance(rows, np.ndarray) or rows.ndim != 2 or rows.shape[1] != width:
+            raise ScenarioError(f"{where}: expected rows of {width} numbers, got shape {np.shape(rows)}")
         if not np.all(np.isfinite(rows)):
             raise ScenarioError(f"{where}: holds a non-finite number")
         if len(rows) != getattr(s, group):
@@ -223,12 +274,86 @@ def _validate_initial_state(s: Scenario) -> None:
         speed = getattr(init, group)[:, 3]
         if np.any((speed < 0) | (speed > s_max)):
             raise ScenarioError(f"initial_state.{group}: speeds must lie in [0, {s_max}] m/s")
-    if np.any(init.obstacles[:, 2] <= 0):
-        raise ScenarioError("initial_state.obstacles: radii must be > 0")
-    if np.any(init.vortices[:, 2] < 0):
-        raise ScenarioError("initial_state.vortices: circulation must be >= 0 (direction is the 4th number)")
+    if np.any(init.obstacles[:, 2] <= 0) or np.any(init.obstacles[:, 2] > 100):
+        raise ScenarioError("initial_state.obstacles: radii must lie in (0, 100] m")
+    if np.any(init.vortices[:, 2] < 0) or np.any(init.vortices[:, 2] > 1e4):
+        raise ScenarioError("initial_state.vortices: circulation must lie in [0, 10000] m^2/s (direction is the 4th number)")
     if not np.all(np.isin(init.vortices[:, 3], (0.0, 1.0))):
         raise ScenarioError("initial_state.vortices: the 4th number (clockwise) must be true/false or 1/0")
+    width, height = s.arena
+    lo = np.array([-INITIAL_STATE_MARGIN * width, -INITIAL_STATE_MARGIN * height])
+    hi = np.array([(1 + INITIAL_STATE_MARGIN) * width, (1 + INITIAL_STATE_MARGIN) * height])
+    for group in _STATE_WIDTHS:
+        xy = getattr(init, group)[:, :2]
+        outside = np.flatnonzero(((xy < lo) | (xy > hi)).any(-1))
+        if len(outside):
+            i = int(outside[0])
+            raise ScenarioError(
+                f"initial_state.{group}[{i}]: ({xy[i, 0]:g}, {xy[i, 1]:g}) m is too far outside the {width:g} x {height:g} m "
+                f"arena (entities must lie in [{lo[0]:g}, {hi[0]:g}] x [{lo[1]:g}, {hi[1]:g}] m)"
+            )
+    robots = np.concatenate([init.pursuers[:, :2], init.evaders[:, :2]])
+    names = [f"pursuers[{i}]" for i in range(len(init.pursuers))] + [f"evaders[{j}]" for j in range(len(init.evaders))]
+    r = p.robot_radius
+    if len(robots) > 1:
+        distance = np.sqrt(((robots[:, None, :] - robots[None, :, :]) ** 2).sum(-1))
+        np.fill_diagonal(distance, np.inf)
+        a, b = np.unravel_index(int(np.argmin(distance)), distance.shape)
+        if distance[a, b] <= 2 * r:
+            a, b = sorted((int(a), int(b)))
+            raise ScenarioError(
+                f"initial_state: {names[a]} and {names[b]} overlap (centre distance {distance[a, b]:.3g} m, "
+                f"robots need more than 2 * robot_radius = {2 * r:.3g} m)"
+            )
+    if len(robots) and len(init.obstacles):
+        distance = np.sqrt(((robots[:, None, :] - init.obstacles[None, :, :2]) ** 2).sum(-1))
+        touching = np.argwhere(distance <= r + init.obstacles[None, :, 2])
+        if len(touching):
+            i, k = (int(v) for v in touching[0])
+            raise ScenarioError(
+                f"initial_state: {names[i]} is inside or touching obstacles[{k}] (centre distance {distance[i, k]:.3g} m, "
+                f"needs more than robot_radius + its radius = {r + init.obstacles[k, 2]:.3g} m)"
+            )
+
+
+def _key(key: Any) -> str:
+    """A field name for an error line, cut to 60 characters."""
+    text = str(key)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    seen: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in seen:
+            raise ScenarioError(f"{_key(key)}: the key appears twice in one JSON object")
+        seen[key] = value
+    return seen
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > 30:
+        raise ScenarioError(f"a {len(text)}-digit integer ({short_repr(text)}); numbers of a scenario are far smaller")
+    return int(text)
+
+
+def _bounded_float(text: str) -> float:
+    if len(text) > 400:
+        raise ScenarioError(f"a {len(text)}-character number ({short_repr(text)}); numbers of a scenario are far shorter")
+    return float(text)
+
+
+def loads_json(text: str) -> Any:
+    """Parse scenario JSON: duplicate keys, absurdly long numbers and nesting too deep for
+    the parser are a ScenarioError, as is any syntax error."""
+    try:
+        return json.loads(text, object_pairs_hook=_no_duplicates, parse_int=_bounded_int, parse_float=_bounded_float)
+    except json.JSONDecodeError as err:
+        raise ScenarioError(f"not valid JSON: {err}") from None
+    except RecursionError:
+        raise ScenarioError("not valid JSON for a scenario: nested too deeply") from None
+    except ValueError as err:  # int/float conversions
+        raise ScenarioError(f"not valid JSON: {short_repr(str(err), 120)}") from None
 
 
 def _is_number(value: Any) -> bool:
@@ -239,16 +364,16 @@ def _from_dict(data: Any) -> Scenario:
     if not isinstance(data, dict):
         raise ScenarioError(f"a scenario must be a JSON object, got {type(data).__name__}")
     known = {f.name for f in dataclasses.fields(Scenario)}
-    unknown = sorted(set(data) - known)
+    unknown = sorted(set(map(str, data)) - known)
     if unknown:
-        raise ScenarioError(f"{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
+        raise ScenarioError(f"{_key(unknown[0])}: unknown field (known: {', '.join(sorted(known))})")
     if "name" not in data:
         raise ScenarioError("name: missing (every scenario needs a name)")
     kwargs = dict(data)
     if "arena" in kwargs:
         arena = kwargs["arena"]
         if not isinstance(arena, (list, tuple)) or len(arena) != 2:
-            raise ScenarioError(f"arena: must be [W, H], got {arena!r}")
+            raise ScenarioError(f"arena: must be [W, H], got {short_repr(arena)}")
         kwargs["arena"] = tuple(arena)
     if "params" in kwargs:
         kwargs["params"] = _params_from_dict(kwargs["params"])
@@ -263,14 +388,14 @@ def _from_dict(data: Any) -> Scenario:
 def _params_from_dict(data: Any) -> WorldParams:
     if not isinstance(data, dict):
         raise ScenarioError("params: must be an object of constant names to numbers")
-    unknown = sorted(set(data) - set(WorldParams.field_names()))
+    unknown = sorted(set(map(str, data)) - set(WorldParams.field_names()))
     if unknown:
-        raise ScenarioError(f"params.{unknown[0]}: unknown constant")
+        raise ScenarioError(f"params.{_key(unknown[0])}: unknown constant")
     default = WorldParams()
     for name, value in data.items():
-        expected = type(getattr(default, name))
-        if not _is_number(value) or (expected is int and not float(value).is_integer()):
-            raise ScenarioError(f"params.{name}: must be a {expected.__name__}, got {value!r}")
+        problem = check_param(name, value)
+        if problem:
+            raise ScenarioError(f"params.{name}: {problem}")
     return WorldParams(**{k: type(getattr(default, k))(v) for k, v in data.items()})
 
 
@@ -279,20 +404,25 @@ def _initial_state_from_dict(data: Any) -> InitialState:
         raise ScenarioError("initial_state: must be an object with pursuers, evaders, obstacles, vortices")
     unknown = sorted(set(data) - set(_STATE_WIDTHS))
     if unknown:
-        raise ScenarioError(f"initial_state.{unknown[0]}: unknown field")
+        raise ScenarioError(f"initial_state.{_key(unknown[0])}: unknown field")
     groups = {}
     for group, width in _STATE_WIDTHS.items():
         rows = data.get(group, [])
         where = f"initial_state.{group}"
         if not isinstance(rows, list):
             raise ScenarioError(f"{where}: must be a list of [{width} numbers] rows")
+        limit = SCENARIO_LIMITS[group]
+        if len(rows) > limit:
+            raise ScenarioError(f"{where}: {len(rows)} rows, above {_limit_hint(group)}")
         for i, row in enumerate(rows):
             if not isinstance(row, list) or len(row) != width:
-                raise ScenarioError(f"{where}[{i}]: must be a list of {width} numbers, got {row!r}")
+                raise ScenarioError(f"{where}[{i}]: must be a list of {width} numbers, got {short_repr(row)}")
             for column, value in enumerate(row):
                 clockwise_flag = group == "vortices" and column == 3 and isinstance(value, bool)
                 if not (_is_number(value) or clockwise_flag):
-                    raise ScenarioError(f"{where}[{i}]: {value!r} is not a number")
+                    raise ScenarioError(f"{where}[{i}]: {short_repr(value)} is not a number")
+                if not isinstance(value, bool) and isinstance(value, int) and abs(value) > 1e15:
+                    raise ScenarioError(f"{where}[{i}]: {short_repr(value)} is far outside any world")
         groups[group] = np.array(rows, dtype=np.float64).reshape(len(rows), width)
     return InitialState(**groups)
 

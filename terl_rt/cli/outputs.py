@@ -1,0 +1,72 @@
+"""Output files of terl-rt commands: never over an input, never over a file unless --force.
+
+Every command that writes checks its outputs before it starts work: an output that is
+one of the command's own inputs is refused even with --force; an existing output is
+refused unless --force; a missing folder is made. Outputs are written under a temporary
+name beside the target and renamed over it once complete (logs: at their first step),
+so a run that fails early leaves an earlier file untouched.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Iterable
+from pathlib import Path
+
+import click
+
+from terl_rt.cli.options import BadInput
+
+force_option = click.option(
+    "--force", is_flag=True,
+    help="Replace output files that already exist (never the command's own inputs).",
+)
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when `a` and `b` name the same file (the same inode, or the same resolved path)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
+
+
+def check_output(
+    path: str | os.PathLike,
+    option: str,
+    inputs: Iterable[tuple[str, str | os.PathLike | None]] = (),
+    force: bool = False,
+) -> Path:
+    """Check the output `path` of `option` (e.g. "--log") and make its folder.
+
+    inputs: (option, path) of the command's input files (None: not given). Raises
+    BadInput when `path` is one of them, is a folder or a device, or exists without --force.
+    """
+    out = Path(path)
+    for name, given in inputs:
+        if given is not None and same_file(out, given):
+            raise BadInput(f"{option} {out} is the {name} file of this command; it is never written over")
+    if out.exists() or out.is_symlink():
+        try:
+            mode = out.stat().st_mode
+        except OSError as error:
+            raise BadInput(f"{option} {out}: {error.strerror}") from None
+        if stat.S_ISDIR(mode):
+            raise BadInput(f"{option} {out} is a folder; name a file")
+        if not stat.S_ISREG(mode):
+            raise BadInput(f"{option} {out} exists and is not a regular file; name a file")
+        if not force:
+            raise BadInput(f"{option} {out} exists; pass --force to replace it")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise BadInput(f"{option} {out}: cannot make its folder ({error.strerror or error})") from None
+    if not out.parent.is_dir():
+        raise BadInput(f"{option} {out}: {out.parent} is not a folder")
+    return out
+
+
+def temporary_name(path: Path) -> Path:
+    """A hidden name beside `path`, with the same suffix, to write before renaming."""
+    return path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")

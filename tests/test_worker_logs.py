@@ -1,0 +1,184 @@
+"""`--workers` runs stream their steps to the log and end with their parent (issue 14, item 1)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from onnx_models import write_test_policy
+
+from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.resimulate import verify
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.scenario import Scenario
+
+
+@pytest.fixture(scope="module")
+def policy_path(tmp_path_factory) -> Path:
+    return write_test_policy(tmp_path_factory.mktemp("policy") / "linear.onnx")
+
+
+def _children(pid: int) -> set[int]:
+    """Process ids whose parent is `pid` (from /proc)."""
+    found = set()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as handle:
+                fields = handle.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.add(int(entry))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _start_eval(policy_path: Path, log: Path) -> subprocess.Popen:
+    command = [
+        sys.executable, "-c", "from terl_rt.cli.main import cli; cli()", "eval", "--policy", str(policy_path), "--scenario", "small-11",
+        "--episodes", "6", "--max-steps", "400", "--workers", "2", "--log", str(log),
+    ]
+    return subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def _wait_for_steps(process: subprocess.Popen, log: Path, size: int = 150_000) -> set[int]:
+    """Wait until the log has grown past `size` bytes; return the worker process ids."""
+    deadline = time.monotonic() + 40
+    while (not log.exists() or log.stat().st_size < size) and time.monotonic() < deadline:
+        assert process.poll() is None, "the evaluation ended before it could be stopped"
+        time.sleep(0.05)
+    workers = _children(process.pid)
+    assert workers, "no worker process found"
+    return workers
+
+
+def _assert_no_survivor(workers: set[int]) -> None:
+    deadline = time.monotonic() + 5
+    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    survivors = {pid: open(f"/proc/{pid}/cmdline").read().replace("\0", " ")[:200] for pid in workers if _alive(pid)}
+    assert not survivors, f"a worker outlived its parent: {survivors}"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_a_worker_run_keeps_the_streamed_steps_and_ends_the_workers(policy_path, tmp_path):
+    log = tmp_path / "killed.mcap"
+    process = _start_eval(policy_path, log)
+    try:
+        workers = _wait_for_steps(process, log)
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait(timeout=10)
+        _assert_no_survivor(workers)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    reader = EpisodeLogReader(log)
+    assert reader.truncated
+    assert reader.episodes and sum(e.steps for e in reader.episodes) > 0
+    last = reader.episodes[-1]
+    assert len(list(reader.steps(last.number))) == len(last.chunks)
+    assert verify(log, last.number).ok
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_ctrl_c_of_a_worker_run_writes_every_received_step_and_ends_the_workers(policy_path, tmp_path):
+    log = tmp_path / "interrupted.mcap"
+    process = _start_eval(policy_path, log)
+    try:
+        workers = _wait_for_steps(process, log)
+        os.killpg(process.pid, signal.SIGINT)
+        assert process.wait(timeout=20) != 0
+        _assert_no_survivor(workers)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    reader = EpisodeLogReader(log)
+    assert not reader.truncated, reader.problem
+    assert reader.episodes and all(e.steps > 0 for e in reader.episodes)
+    assert all(verify(log, e.number).ok for e in reader.episodes)
+
+
+def test_the_log_of_two_workers_grows_while_the_first_episode_runs(policy_path, tmp_path):
+    """Steps reach the file while the episode is still running, not when it ends."""
+    log = tmp_path / "growing.mcap"
+    sizes = []
+
+    def progress(index, metrics):
+        sizes.append(log.stat().st_size)
+
+    result = evaluate(OnnxPolicy(policy_path), Scenario.preset("small-11"), episodes=2, seed=0, max_steps=30,
+                      workers=2, log_path=log, progress=progress)
+    assert result.episodes == 2
+    reader = EpisodeLogReader(log)
+    assert [e.steps for e in reader.episodes] == [30, 30]
+    assert sizes[0] < log.stat().st_size
+
+
+def test_steps_held_back_for_episode_order_are_written_when_the_run_stops(policy_path, tmp_path):
+    """Episode 1's steps wait while episode 0 runs; stopped, the run writes them (unended) too."""
+    from terl_rt.evaluation.episodes import _InOrderLog, run_episode
+    from terl_rt.logs.writer import EpisodeLogWriter
+    from terl_rt.policy.onnx_policy import policy_info
+
+    policy = OnnxPolicy(policy_path)
+    scenario = Scenario.preset("small-11").replace(max_steps=5)
+    streams = {k: [] for k in range(3)}
+    ends = {k: run_episode(policy, scenario, k, streams[k].append) for k in range(3)}
+    finished = []
+    log = tmp_path / "held.mcap"
+    with EpisodeLogWriter(log, policy_info(policy)) as writer:
+        order = _InOrderLog(scenario, 0, writer, lambda index, metrics: finished.append(index))
+        for record in streams[1]:
+            order.receive("step", 1, record)
+        order.receive("end", 1, ends[1])
+        for record in streams[2][:3]:
+            order.receive("step", 2, record)
+        for record in streams[0][:4]:
+            order.receive("step", 0, record)
+        order.flush_waiting()
+    assert finished == []
+    episodes = EpisodeLogReader(log).episodes
+    assert [(e.index, e.steps, e.complete) for e in episodes] == [(0, 3, False), (1, 5, True), (2, 2, False)]
+    assert all(verify(log, e.number).ok for e in episodes)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_policy_with_non_finite_outputs_stops_the_run_naming_policy_and_step(tmp_path, bad, workers):
+    from click.testing import CliRunner
+    from onnx_models import write_constant_policy
+
+    from terl_rt.cli.main import cli
+
+    path = write_constant_policy(tmp_path / "nan.onnx", [0, 1, bad, 0, 0, 0, 0, 0, 0])
+    log = tmp_path / "nan.mcap"
+    result = CliRunner().invoke(cli, ["eval", "--policy", str(path), "--scenario", "small-11", "--episodes", "2",
+                                      "--max-steps", "5", "--workers", str(workers), "--log", str(log)])
+    assert result.exit_code == 2, result.output
+    errors = [line for line in result.stderr.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "Traceback" not in result.output
+    assert "nan.onnx" in errors[0] and "step 1" in errors[0] and "non-finite q_values" in errors[0]
+
+
+def test_a_worker_whose_parent_died_while_it_started_ends_at_once():
+    # The worker is told its parent's pid; a different parent (it was re-parented) ends it.
+    code = "from terl_rt.evaluation.episodes import _die_with_parent; _die_with_parent(-1); print('alive')"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 1 and "alive" not in result.stdout
