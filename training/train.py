@@ -404,18 +404,18 @@ def train(
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
 
-    # --- networks, optimiser, replay buffer
+    # --- networks, optimiser, counters, replay buffer
     model, target, optimizer = build_learner(config)
     counters = Counters()
-    scenario = training_scenario(config, counters.env_step)
-    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
-    learning_starts = config.learning_starts
-    progress = Progress(show_progress, counters.env_step)
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
         for group in optimizer.param_groups:  # the config rules: the saved state carries the old rate
             group["lr"] = config.learning_rate
-        progress = Progress(show_progress, counters.env_step)
+    progress = Progress(show_progress, counters.env_step)
+    scenario = training_scenario(config, counters.env_step)
+    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
+    learning_starts = config.learning_starts
+    if resume is not None:
         saved = Path(resume) / REPLAY_FILE
         if saved.is_file():
             buffer.load(saved)
@@ -431,7 +431,6 @@ def train(
 
     # --- environments
     num_envs = config.num_envs
-    scenario = training_scenario(config, counters.env_step)
     rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
     transitions = TransitionStore(buffer, config, num_envs * scenario.pursuers)
     if scenario.name not in counters.stages:
