@@ -29,6 +29,7 @@ from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
+    REPORT_SUITE,
     MatplotlibMissing,
     ReportPaths,
     goal_checks,
@@ -74,7 +75,8 @@ def command_line(
 @policy_option
 @click.option(
     "--scenario", "scenario_names", multiple=True, metavar="NAME",
-    help="Preset scenario (repeat for several) [default: the 10 paper presets; see `terl-rt scenarios`].",
+    help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
+    "ones; see `terl-rt scenarios`].",
 )
 @episodes_option
 @seed_option
@@ -89,12 +91,12 @@ def command_line(
 @force_option
 def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
-    write DIR/results.md (a row per preset and per scale group beside the paper's TERL
-    numbers, and which of the paper's goals are met) and DIR/results.png (success rate,
-    travel time and collision ratio against the number of pursuers). The figure needs
-    matplotlib: pip install -e '.[report]'. A progress bar goes to stderr. Existing
-    results files (the shipped docs/results.* included) are replaced only with --force,
-    and only once both new files are complete."""
+    the released small-scale config's, and write DIR/results.md (a row per preset and per
+    scale group beside the paper's TERL numbers, and which of the paper's goals are met)
+    and DIR/results.png (success rate, travel time and collision ratio against the
+    number of pursuers). The figure needs matplotlib: pip install -e '.[report]'. A
+    progress bar goes to stderr. Existing results files (the shipped docs/results.*
+    included) are replaced only with --force, and only once both new files are complete."""
     try:
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
@@ -104,7 +106,7 @@ def report_command(policy_path, scenario_names, episodes, seed, max_steps, worke
         raise BadInput(f"--out {out} is a file; name a folder")
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
-    scenarios = resolve_scenarios(scenario_names, None, None if scenario_names else "paper")
+    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy.path)], force)

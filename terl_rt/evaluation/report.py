@@ -22,9 +22,21 @@ from typing import NamedTuple
 
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.stats import CI_METRICS, format_interval, mean_intervals
-from terl_rt.evaluation.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
+from terl_rt.evaluation.paper import (
+    ABLATION_TABLE,
+    CC_TABLE,
+    GOALS,
+    PRESET_GROUPS,
+    REPORT_GROUPS,
+    SCALE_GROUPS,
+    SMALL_RELEASED,
+    TERL,
+    TERL_BY_GROUP,
+    paper_group,
+    scale_group,
+)
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from terl_rt.sim.scenario import PRESETS
+from terl_rt.sim.scenario import PAPER_SUITE, PRESETS, PUBLISHED_SMALL_SUITE
 
 MARKDOWN_NAME = "results.md"
 FIGURE_NAME = "results.png"
@@ -33,6 +45,9 @@ PAPER_EPISODES = 20
 PAPER_MAX_STEPS = 1000
 """Step limit of the paper's evaluation episodes (world.md section 10)."""
 INSTALL_HINT = "pip install -e '.[report]'"
+REPORT_SUITE: tuple[str, ...] = PAPER_SUITE[:3] + PUBLISHED_SMALL_SUITE + PAPER_SUITE[3:]
+"""The presets `terl-rt report` evaluates by default: the paper's 10, with the released
+small-scale config after the table's small presets."""
 
 
 class MatplotlibMissing(ImportError):
@@ -51,7 +66,8 @@ class GroupSummary:
     """This policy's mean over the evaluated presets of one scale group (each preset weighs the same)."""
 
     group: str
-    """'small', 'medium', 'large' or 'CC'."""
+    """one of `terl_rt.evaluation.paper.REPORT_GROUPS`: 'small', 'small (released config)',
+    'medium', 'large' or 'CC'."""
     presets: tuple[str, ...]
     """the group's presets that were evaluated, in the order given."""
     success_rate: float
@@ -90,10 +106,10 @@ class GoalCheck:
 
 
 def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
-    """Per scale group with at least one evaluated preset, in the paper's order: the mean
-    of the presets' success rates, mean travel times (s) and mean collision ratios."""
+    """Per report group with at least one evaluated preset, in REPORT_GROUPS' order: the
+    mean of the presets' success rates, mean travel times (s) and mean collision ratios."""
     summaries = []
-    for group in SCALE_GROUPS:
+    for group in REPORT_GROUPS:
         members = [r for r in results if scale_group(r.name) == group]
         if not members:
             continue
@@ -112,15 +128,16 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
 
 
 def goal_checks(results: Sequence[ScenarioResult]) -> list[GoalCheck]:
-    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated scale group: success
-    rate at or above, travel time (s) and collision ratio at or under the bound.
+    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated report group (the
+    released small config: small scale's): success rate at or above, travel time (s) and
+    collision ratio at or under the bound.
 
     A short travel time counts only with the success goal met: episodes that end
     early because too few pursuers are left are not fast encirclements.
     """
     checks = []
     for summary in group_summaries(results):
-        goal = GOALS[summary.group]
+        goal = GOALS[paper_group(summary.group)]
         succeeds = summary.success_rate >= goal.min_success_rate - 1e-9
         for metric, value, bound, met in (
             ("success rate", summary.success_rate, goal.min_success_rate, succeeds),
@@ -190,6 +207,7 @@ def render_markdown(
     """The text of results.md. `policy_info` as `terl_rt.policy.onnx_policy.policy_info` makes
     it: name, sha256, path and metadata (a dict of the ONNX metadata_props)."""
     metadata = policy_info.get("metadata") or {}
+    released = any(scale_group(r.name) == SMALL_RELEASED for r in results)
     name = policy_info.get("name", "unknown policy")
     seeds = sorted({r.seed for r in results})
     lines = [
@@ -214,7 +232,9 @@ def render_markdown(
         "The goals are the paper's TERL numbers (policy.md section 4): success rate 1.00 at small, "
         "medium and large scale and 0.80 on CC, collision ratio at most 0.03, and travel time at or "
         f"under {_join(f'{GOALS[g].max_travel_time_s:.0f} s' for g in SCALE_GROUPS)} "
-        f"({_join(_group_title(g, lower=True) for g in SCALE_GROUPS)}).",
+        f"({_join(_group_title(g, lower=True) for g in SCALE_GROUPS)})."
+        + (f" The released small-scale config ({', '.join(PUBLISHED_SMALL_SUITE)}) is held to the "
+           "small-scale goals." if released else ""),
         "",
         "## Per preset",
         "",
@@ -249,7 +269,7 @@ def render_markdown(
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for s in group_summaries(results):
-        paper = TERL_BY_GROUP[s.group]
+        paper = TERL_BY_GROUP[paper_group(s.group)]
         lines.append(
             f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f}{_ci(s.ci95, 'success_rate', 2)} "
             f"| {paper.success_rate:.2f} "
@@ -304,15 +324,14 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
     """Draw the three panels of the paper's Fig. 3 into a PNG at `path`: success rate,
     travel time (s, mean ± std) and collision ratio against the number of pursuers N.
 
-    This policy's small, medium and large presets are one line with markers; the paper's
+    This policy's small, medium and large presets are one line with markers, the released
+    small config's (small-published-*) a dotted line with hollow diamonds; the paper's
     TERL row of each group is a dashed line over the group's N with hollow squares;
     cc-28 (N = 28) is a star, filled for this policy, hollow for the paper.
     """
     figure_class, canvas_class = _agg_figure_classes()
-    ours = sorted(
-        ((PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) in ("small", "medium", "large")),
-        key=lambda pair: pair[0],
-    )
+    ours = _by_pursuers(r for r in results if scale_group(r.name) in ("small", "medium", "large"))
+    released = _by_pursuers(r for r in results if scale_group(r.name) == SMALL_RELEASED)
     cc = [(PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) == "CC"]
     group_pursuers = {
         group: [PRESETS[name].pursuers for name, g in PRESET_GROUPS.items() if g == group] for group in SCALE_GROUPS
@@ -337,13 +356,10 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
         ax.plot(group_pursuers["CC"], [getattr(TERL_BY_GROUP["CC"], paper_field)], "*", color="C3",
                 markerfacecolor="none", markersize=13, label="paper TERL, CC")
         if ours:
-            xs = [n for n, _ in ours]
-            ys = [getattr(r, ours_field) for _, r in ours]
-            if spread_field is None:
-                ax.plot(xs, ys, "o-", color="C0", label="this policy")
-            else:
-                ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in ours], fmt="o-", color="C0",
-                            capsize=3, label="this policy")
+            _draw_series(ax, ours, ours_field, spread_field, "o-", "C0", "this policy")
+        if released:
+            _draw_series(ax, released, ours_field, spread_field, "D:", "C4", "this policy, released small config",
+                         markerfacecolor="none")
         for n, r in cc:
             yerr = None if spread_field is None else [getattr(r, spread_field)]
             ax.errorbar([n], [getattr(r, ours_field)], yerr=yerr, fmt="*", color="C2", markersize=13,
@@ -368,6 +384,24 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
     path = Path(path)
     figure.savefig(path, format="png")
     return path
+
+
+def _by_pursuers(results) -> list[tuple[int, ScenarioResult]]:
+    """(pursuers N, result) of preset results, by N."""
+    return sorted(((PRESETS[r.name].pursuers, r) for r in results), key=lambda pair: pair[0])
+
+
+def _draw_series(ax, series: Sequence[tuple[int, ScenarioResult]], value_field: str, spread_field: str | None,
+                 fmt: str, color: str, label: str, **style) -> None:
+    """One line of (N, result) points: `value_field` of each result, with `spread_field`
+    (a field of ScenarioResult) as symmetric error bars when given."""
+    xs = [n for n, _ in series]
+    ys = [getattr(r, value_field) for _, r in series]
+    if spread_field is None:
+        ax.plot(xs, ys, fmt, color=color, label=label, **style)
+    else:
+        ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in series], fmt=fmt, color=color,
+                    capsize=3, label=label, **style)
 
 
 def _agg_figure_classes():
@@ -439,7 +473,7 @@ def _join(items, word: str = "and") -> str:
 def _group_title(group: str, lower: bool = False) -> str:
     if group == "CC":
         return "CC"
-    title = f"{group} scale"
+    title = "small scale, released config" if group == SMALL_RELEASED else f"{group} scale"
     return title if lower else title.capitalize()
 
 
@@ -461,7 +495,7 @@ def _shown(check: GoalCheck) -> str:
 def _paper_cells(group: str | None) -> str:
     if group is None:
         return "— | — | —"
-    paper = TERL_BY_GROUP[group]
+    paper = TERL_BY_GROUP[paper_group(group)]
     return f"{paper.success_rate:.2f} | {paper.travel_time_s:.2f} | {paper.collision_ratio:.2f}"
 
 
