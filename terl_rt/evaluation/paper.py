@@ -21,6 +21,17 @@ from dataclasses import dataclass
 TERL = "TERL"
 """The paper's name for its own method in every table."""
 
+PAPER_METHODS: dict[str, str] = {
+    "terl": TERL, "iqn": "IQN", "dqn": "DQN", "mean": "MEAN", "terl-no-re": "w/o RE", "terl-no-ts": "w/o TS",
+}
+"""The paper's name of each model (the `terl.model` metadata, policy.md section 1), in its order."""
+
+BASELINES: tuple[str, ...] = ("IQN", "DQN", "MEAN")
+"""The methods the paper compares TERL with (its Fig. 3 and CC table)."""
+
+ABLATIONS: tuple[str, ...] = ("w/o RE", "w/o TS")
+"""TERL without relation extraction and without target selection (its ablation table)."""
+
 SCALE_GROUPS: tuple[str, ...] = ("small", "medium", "large", "CC")
 """The scale groups the paper reports, in its order."""
 
