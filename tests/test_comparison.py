@@ -3,7 +3,8 @@
 
 The claims are checked on hand-made group means whose answer is known: one set that
 reproduces every claim, then one number changed at a time so that exactly one claim
-fails.
+fails. The CLI runs tiny linear policies (tests/onnx_models.py) named as the paper's
+models, one short episode a scenario.
 """
 
 from __future__ import annotations
@@ -14,9 +15,12 @@ from dataclasses import replace
 from datetime import datetime, timezone
 
 import pytest
+from click.testing import CliRunner
 from made_results import made_result
+from onnx_models import write_broken_policy, write_test_policy
 from PIL import Image
 
+from terl_rt.cli.main import cli
 from terl_rt.evaluation.comparison import (
     CLAIMS,
     DOES_NOT_REPRODUCE,
@@ -278,3 +282,101 @@ def test_comparison_needs_two_distinct_methods(tmp_path):
     with pytest.raises(ComparisonError, match="both method 'TERL'"):
         write_comparison([terl, terl], tmp_path, "terl-rt report")
     assert not list(tmp_path.iterdir())
+
+
+# --- CLI -------------------------------------------------------------------------------
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(arg) for arg in args])
+
+
+@pytest.fixture(scope="module")
+def policies(tmp_path_factory):
+    """A folder of three tiny policies standing for TERL, IQN and w/o RE."""
+    folder = tmp_path_factory.mktemp("policies")
+    for seed, model in enumerate(("terl", "iqn", "terl-no-re")):
+        write_test_policy(folder / f"{model}.onnx", seed=seed, model=model)
+    return folder
+
+
+TINY = ("--scenario", "small-published-7", "--scenario", "cc-28", "--episodes", "2", "--max-steps", "2")
+
+
+def test_report_with_several_policies_writes_the_comparison(policies, tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "docs"
+    result = invoke("report", "--policy", policies / "iqn.onnx", "--policy", policies / "terl.onnx", *TINY,
+                    "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "IQN: " in result.stderr and "cc-28" in result.stderr  # each method, then its progress bars
+    assert f"wrote {out / 'comparison.md'}, {out / 'comparison.png'} and {out / 'comparison.json'}" in result.stdout
+    assert "not measured" in next(line for line in result.stdout.splitlines() if "IQN degrades" in line)
+    assert sorted(p.name for p in out.iterdir()) == ["comparison.json", "comparison.md", "comparison.png"]
+    text = (out / "comparison.md").read_text()
+    assert text.startswith("# TERL and IQN against the paper's comparison")
+    assert "| TERL | terl | " in text and "| IQN | iqn | " in text
+    assert f"--policy {policies / 'iqn.onnx'} --policy {policies / 'terl.onnx'} --scenario small-published-7" in text
+    table_iii_text = text.split("## Table III")[1].split("##")[0]
+    assert [line.split(" | ")[0] for line in table_iii_text.splitlines() if line.startswith("| ") and "---" not in line] \
+        == ["| method", "| TERL", "| IQN"]
+    assert f"| {SMALL_RELEASED} | TERL | " in text
+    assert "indicative only" in text
+
+
+def test_report_of_a_folder_compares_every_policy_in_it_with_json(policies, tmp_path):
+    pytest.importorskip("matplotlib")
+    result = invoke("report", "--policy", policies, *TINY, "--out", tmp_path, "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert [m["method"] for m in out["methods"]] == ["TERL", "IQN", "w/o RE"]  # the paper's order
+    assert out["files"]["json"] == str(tmp_path / "comparison.json")
+    assert json.loads((tmp_path / "comparison.json").read_text())["claims"] == out["claims"]
+
+
+def test_report_with_one_policy_writes_only_results(policies, tmp_path):
+    pytest.importorskip("matplotlib")
+    result = invoke("report", "--policy", policies / "iqn.onnx", "--scenario", "small-published-7",
+                    "--episodes", "1", "--max-steps", "2", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.md", "results.png"]
+
+
+def test_a_folder_without_onnx_files_is_one_error_line(tmp_path):
+    (tmp_path / "notes.txt").write_text("no policies here")
+    result = invoke("report", "--policy", tmp_path, "--out", tmp_path / "docs")
+    assert result.exit_code == 2
+    assert result.stderr == f"Error: --policy {tmp_path} is a folder with no .onnx files\n"
+
+
+def test_two_policies_of_one_method_are_one_error_line(policies, tmp_path):
+    other = write_test_policy(tmp_path / "other-terl.onnx", seed=5, model="terl")
+    result = invoke("report", "--policy", policies / "terl.onnx", "--policy", other, *TINY, "--out", tmp_path / "docs")
+    assert result.exit_code == 2
+    assert result.stderr.startswith("Error: --policy: ") and result.stderr.count("\n") == 1
+    assert f"{policies / 'terl.onnx'} and {other} are both method 'TERL'" in result.stderr
+    assert not (tmp_path / "docs").exists() or not list((tmp_path / "docs").iterdir())
+
+
+def test_a_policy_that_breaks_the_contract_is_one_error_line_naming_it(policies, tmp_path):
+    broken = write_broken_policy(tmp_path / "broken.onnx", "eight_actions")
+    result = invoke("report", "--policy", policies / "terl.onnx", "--policy", broken, *TINY, "--out", tmp_path / "docs")
+    assert result.exit_code == 2
+    assert result.stderr.startswith("Error: ") and result.stderr.count("\n") == 1
+    assert str(broken) in result.stderr
+    assert "small-published-7" not in result.stderr  # refused before any evaluation
+
+
+def test_an_existing_comparison_is_refused_before_evaluating_and_replaced_with_force(policies, tmp_path):
+    pytest.importorskip("matplotlib")
+    (tmp_path / "comparison.md").write_text("an earlier comparison")
+    args = ("report", "--policy", policies / "terl.onnx", "--policy", policies / "iqn.onnx", "--scenario",
+            "small-published-7", "--episodes", "1", "--max-steps", "2", "--out", tmp_path)
+    refused = invoke(*args)
+    assert refused.exit_code == 2
+    assert refused.stderr == f"Error: --out {tmp_path / 'comparison.md'} exists; pass --force to replace it\n"
+    assert (tmp_path / "comparison.md").read_text() == "an earlier comparison"
+    replaced = invoke(*args, "--force")
+    assert replaced.exit_code == 0, replaced.output
+    assert (tmp_path / "comparison.md").read_text().startswith("# TERL and IQN")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["comparison.json", "comparison.md", "comparison.png"]
