@@ -4,7 +4,9 @@
 markdown page (the policy, the command, the date; a row per preset beside the paper's
 TERL row for its scale group; a row per scale group; which of the paper's goals are
 met) and a figure in the manner of the paper's Fig. 3 (success rate, travel time and
-collision ratio against the number of pursuers).
+collision ratio against the number of pursuers). `plot_comparison` draws that figure
+for several methods at once, for `terl_rt.evaluation.comparison`, which shares the
+helpers below (group summaries and the wording of intervals, run settings and caveats).
 
 matplotlib draws the figure; it is an optional extra (`pip install -e '.[report]'`),
 imported only when a figure is drawn.
@@ -566,6 +568,7 @@ def join_words(items, word: str = "and") -> str:
 
 
 def group_title(group: str, lower: bool = False) -> str:
+    """'Small scale', 'Small scale, released config', 'CC' (lowercase with `lower`)."""
     if group == "CC":
         return "CC"
     title = "small scale, released config" if group == SMALL_RELEASED else f"{group} scale"
@@ -595,6 +598,7 @@ def _paper_cells(group: str | None) -> str:
 
 
 def training_steps_text(text: str | None) -> str:
+    """The terl.training_steps metadata as '440,000', or why it is unknown."""
     if text is None:
         return "unknown (no terl.training_steps metadata)"
     try:
