@@ -58,12 +58,12 @@ DEFECTS = {
 """Defects `write_broken_policy` can write, each breaking one clause of the contract."""
 
 
-def contract_metadata(*, training_info: bool = True) -> dict[str, str]:
-    """metadata_props of a contract-meeting test policy; `training_info=False` leaves
-    out terl.training_steps and terl.trained_on (a warning, not a refusal)."""
+def contract_metadata(*, training_info: bool = True, model: str = "linear-test") -> dict[str, str]:
+    """metadata_props of a contract-meeting test policy named `model`; `training_info=False`
+    leaves out terl.training_steps and terl.trained_on (a warning, not a refusal)."""
     metadata = {
         "terl.contract": "1",
-        "terl.model": "linear-test",
+        "terl.model": model,
         "terl.hidden": str(POOLED_FEATURES),
         "terl.layers": "0",
         "terl.heads": "0",
@@ -217,15 +217,17 @@ def write_test_policy(
     target_weights: bool = True,
     seed: int = 0,
     training_info: bool = True,
+    model: str = "linear-test",
 ) -> Path:
     """Write the linear test policy (weights `LinearWeights.from_seed(seed)`) to `path`.
 
-    It meets the contract; `target_weights=False` leaves that output out and
-    `training_info=False` the training metadata (warnings only). Returns the path.
+    It meets the contract; `target_weights=False` leaves that output out,
+    `training_info=False` the training metadata (warnings only); `model` is its
+    terl.model name (e.g. "iqn" to stand for a baseline). Returns the path.
     """
     spec = _ModelSpec(
         weights=LinearWeights.from_seed(seed),
-        metadata=contract_metadata(training_info=training_info),
+        metadata=contract_metadata(training_info=training_info, model=model),
         target_weights=target_weights,
     )
     return _save(_build(spec), path)

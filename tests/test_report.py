@@ -9,16 +9,19 @@ from __future__ import annotations
 import json
 import sys
 from datetime import datetime, timezone
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from made_results import made_result
 from onnx_models import write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.paper import GOALS, PRESET_GROUPS, TERL_BY_GROUP, scale_group
+from terl_rt.evaluation.paper import GOALS, PRESET_GROUPS, SMALL_RELEASED, TERL_BY_GROUP, paper_group, scale_group
 from terl_rt.evaluation.report import (
+    REPORT_SUITE,
     MatplotlibMissing,
     goal_checks,
     group_summaries,
@@ -26,7 +29,7 @@ from terl_rt.evaluation.report import (
     where_it_stands,
     write_report,
 )
-from terl_rt.sim.scenario import PAPER_SUITE
+from terl_rt.sim.scenario import PAPER_SUITE, PUBLISHED_SMALL_SUITE
 
 POLICY_INFO = {
     "name": "terl-test",
@@ -50,7 +53,7 @@ def result(name: str, success: float = 1.0, travel: float = 40.0, collision: flo
 
 def at_goal(name: str, **changes) -> ScenarioResult:
     """A result exactly on every goal of the preset's scale group (all met), with `changes`."""
-    goal = GOALS[scale_group(name)]
+    goal = GOALS[paper_group(scale_group(name))]
     values = {"success": goal.min_success_rate, "travel": goal.max_travel_time_s,
               "collision": goal.max_collision_ratio}
     return result(name, **{**values, **changes})
@@ -67,10 +70,16 @@ def invoke(*args):
 # --- paper data -----------------------------------------------------------------------
 
 
-def test_every_paper_preset_has_a_scale_group_and_others_have_none():
-    assert set(PRESET_GROUPS) == set(PAPER_SUITE)
+def test_every_evaluation_preset_has_a_scale_group_and_others_have_none():
+    assert set(PRESET_GROUPS) == set(PAPER_SUITE) | set(PUBLISHED_SMALL_SUITE)
     assert [scale_group(n) for n in ("small-15", "medium-51", "large-80", "cc-28")] == ["small", "medium", "large", "CC"]
     assert scale_group("curriculum-3") is None
+
+
+def test_released_small_config_is_its_own_group_measured_against_small_scale():
+    assert {scale_group(name) for name in PUBLISHED_SMALL_SUITE} == {SMALL_RELEASED}
+    assert paper_group(SMALL_RELEASED) == "small" and paper_group("large") == "large"
+    assert REPORT_SUITE == ("small-11", "small-15", "small-19", *PUBLISHED_SMALL_SUITE, *PAPER_SUITE[3:])
 
 
 def test_cc_goal_uses_the_papers_comparison_row():
@@ -175,6 +184,45 @@ def test_markdown_has_a_row_per_scale_group():
     assert [row.split(" | ")[0] for row in rows] == ["| small", "| medium", "| large", "| CC"]
 
 
+GOLDEN = Path(__file__).parent / "data" / "report" / "paper-suite-results.md"
+
+
+def golden_results() -> list[ScenarioResult]:
+    """The paper suite with made episodes (different numbers on every preset)."""
+    return [made_result(name, successes=20 - k % 3, travel_s=40.0 + 9 * k, collided=k % 4)
+            for k, name in enumerate(PAPER_SUITE)]
+
+
+def test_single_policy_markdown_of_the_paper_suite_is_unchanged():
+    # GOLDEN was written by render_markdown before the comparison and the released small
+    # config existed: on the paper's presets results.md must read exactly the same.
+    text = render_markdown(golden_results(), POLICY_INFO, "terl-rt report --policy exported/terl.onnx --out docs", DATE)
+    assert text == GOLDEN.read_text()
+
+
+def test_released_small_config_adds_its_rows_and_keeps_the_others():
+    # The released presets go after the table's small ones, as in REPORT_SUITE.
+    released = [made_result(name, travel_s=30.0 + k) for k, name in enumerate(PUBLISHED_SMALL_SUITE)]
+    suite = golden_results()
+    text = render_markdown(suite[:3] + released + suite[3:], POLICY_INFO,
+                           "terl-rt report --policy exported/terl.onnx --out docs", DATE)
+    golden_lines = GOLDEN.read_text().splitlines()
+    new_lines = [line for line in text.splitlines() if line not in golden_lines]
+    # The released presets' rows, beside the paper's small-scale TERL row (45.98 s).
+    for name in PUBLISHED_SMALL_SUITE:
+        (row,) = [line for line in new_lines if line.startswith(f"| {name} | {SMALL_RELEASED} | 20 |")]
+        assert row.endswith("| 1.00 | 45.98 | 0.00 |")
+    (group_row,) = [line for line in new_lines if line.startswith(f"| {SMALL_RELEASED} | ")]
+    assert "small-published-7, small-published-11, small-published-15 | 1.00 [1.00, 1.00] | 1.00 | 31.0" in group_row
+    # Every row of the paper's presets and groups is kept as it was.
+    for line in golden_lines:
+        if line.startswith(("| small", "| medium", "| large", "| cc-28", "| CC")):
+            assert line in text
+    assert "Small scale, released config (small-published-7, small-published-11, small-published-15) meets all three" in text
+    assert "In all, 5 of 15 goals are met." in text
+    assert "is held to the small-scale goals" in text and "is held to" not in GOLDEN.read_text()
+
+
 def test_markdown_header_names_the_policy_the_command_and_the_date():
     text = render_markdown([result("small-11")], POLICY_INFO, "terl-rt report --scenario small-11", DATE)
     assert text.startswith("# terl-test against the TERL paper")
@@ -190,9 +238,11 @@ def test_markdown_header_names_the_policy_the_command_and_the_date():
 
 def test_report_writes_markdown_and_a_three_panel_png(tmp_path):
     pytest.importorskip("matplotlib")
-    paths = write_report(suite_at_goal(), POLICY_INFO, tmp_path / "docs", "terl-rt report", date=DATE)
+    results = [at_goal(name) for name in REPORT_SUITE]
+    paths = write_report(results, POLICY_INFO, tmp_path / "docs", "terl-rt report", date=DATE)
     assert paths.markdown == tmp_path / "docs" / "results.md" and paths.figure == tmp_path / "docs" / "results.png"
     assert "| cc-28 | CC |" in paths.markdown.read_text()
+    assert f"| small-published-7 | {SMALL_RELEASED} |" in paths.markdown.read_text()
     with Image.open(paths.figure) as image:
         assert image.format == "PNG"
         width, height = image.size

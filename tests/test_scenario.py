@@ -8,11 +8,14 @@ import re
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from sim_helpers import initial_scenario
 
+from terl_rt.cli.main import cli
 from terl_rt.sim.params import WorldParams
 from terl_rt.sim.scenario import (
     PAPER_SUITE,
+    PUBLISHED_SMALL_SUITE,
     InitialState,
     Scenario,
     ScenarioError,
@@ -63,11 +66,37 @@ def test_curriculum_presets_match_the_training_table(stage, pursuers, evaders, o
     assert (s.arena, s.evader_slots, s.max_steps) == ((120.0, 120.0), 8, 3000)
 
 
-def test_there_are_fifteen_presets_evaluation_first():
+def test_there_are_eighteen_presets_evaluation_first():
     names = Scenario.presets()
-    assert len(names) == 15
+    assert len(names) == 18
     assert names[:10] == PAPER_SUITE
-    assert names[10:] == tuple(f"curriculum-{k}" for k in range(1, 6))
+    assert names[10:13] == PUBLISHED_SMALL_SUITE
+    assert names[13:] == tuple(f"curriculum-{k}" for k in range(1, 6))
+
+
+@pytest.mark.parametrize(
+    ("name", "pursuers", "evaders", "obstacles"),
+    [("small-published-7", 7, 2, 2), ("small-published-11", 11, 3, 4), ("small-published-15", 15, 4, 6)],
+)
+def test_published_small_presets_match_the_released_evaluation_config(name, pursuers, evaders, obstacles):
+    # policy.md section 2: 7 / 11 / 15 pursuers, 2 / 3 / 4 evaders, 2 / 4 / 6 obstacles;
+    # the rest is the small-scale group's (world.md section 11).
+    s = Scenario.preset(name)
+    assert (s.pursuers, s.evaders, s.obstacles) == (pursuers, evaders, obstacles)
+    small = Scenario.preset("small-15")
+    assert (s.arena, s.vortices, s.evader_slots, s.max_steps, s.min_pursuer_evader_init_dis, s.clear_r) == (
+        small.arena, small.vortices, small.evader_slots, small.max_steps, small.min_pursuer_evader_init_dis,
+        small.clear_r)
+
+
+def test_scenarios_command_lists_the_published_small_presets():
+    table = CliRunner().invoke(cli, ["scenarios"])
+    assert table.exit_code == 0, table.output
+    (row,) = [line.split() for line in table.stdout.splitlines() if line.startswith("small-published-15 ")]
+    assert row[:4] == ["small-published-15", "15", "4", "6"]
+    listed = json.loads(CliRunner().invoke(cli, ["scenarios", "--json"]).stdout)
+    assert listed["published_small_suite"] == list(PUBLISHED_SMALL_SUITE)
+    assert [r["name"] for r in listed["scenarios"]] == list(Scenario.presets())
 
 
 @pytest.mark.parametrize(

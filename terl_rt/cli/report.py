@@ -1,4 +1,5 @@
-"""`terl-rt report`: evaluate a policy on the paper's presets and write docs/results.md and .png."""
+"""`terl-rt report`: evaluate a policy on the paper's presets and write docs/results.md and .png;
+several policies: docs/comparison.md, .png and .json."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import textwrap
 import click
 
 from terl_rt.cli.options import (
+    DEFAULT_POLICY,
     BadInput,
     episodes_option,
     evaluate_with_progress,
@@ -19,16 +21,17 @@ from terl_rt.cli.options import (
     max_steps_option,
     open_policy,
     policy_json,
-    policy_option,
     resolve_scenarios,
     seed_option,
     threads_option,
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.evaluation import comparison
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
+    REPORT_SUITE,
     MatplotlibMissing,
     ReportPaths,
     goal_checks,
@@ -39,9 +42,32 @@ from terl_rt.evaluation.report import (
 )
 from terl_rt.policy.onnx_policy import policy_info
 
+policies_option = click.option(
+    "--policy", "policy_paths", multiple=True, metavar="PATH",
+    help="ONNX policy file, or a folder of .onnx files; repeat to compare several policies, one a "
+    f"method [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
+)
+
+
+def policy_files(given: tuple[str, ...]) -> list[str | None]:
+    """The policy files of --policy: files as given, a folder's .onnx files in name order;
+    [None] (the default policy) when none is given. BadInput for a folder without one."""
+    if not given:
+        return [None]
+    files: list[str | None] = []
+    for path in given:
+        if not Path(path).is_dir():
+            files.append(path)
+            continue
+        found = sorted(str(entry) for entry in Path(path).iterdir() if entry.suffix == ".onnx" and entry.is_file())
+        if not found:
+            raise BadInput(f"--policy {path} is a folder with no .onnx files")
+        files += found
+    return files
+
 
 def command_line(
-    policy_path: str | None,
+    policy_paths: tuple[str, ...],
     scenario_names: tuple[str, ...],
     episodes: int,
     seed: int,
@@ -53,8 +79,8 @@ def command_line(
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
-    if policy_path is not None:
-        words += ["--policy", policy_path]
+    for path in policy_paths:
+        words += ["--policy", path]
     for name in scenario_names:
         words += ["--scenario", name]
     words += ["--episodes", str(episodes), "--seed", str(seed)]
@@ -71,10 +97,11 @@ def command_line(
 
 
 @click.command("report")
-@policy_option
+@policies_option
 @click.option(
     "--scenario", "scenario_names", multiple=True, metavar="NAME",
-    help="Preset scenario (repeat for several) [default: the 10 paper presets; see `terl-rt scenarios`].",
+    help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
+    "ones; see `terl-rt scenarios`].",
 )
 @episodes_option
 @seed_option
@@ -87,14 +114,20 @@ def command_line(
 )
 @json_option
 @force_option
-def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
+def report_command(policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
-    write DIR/results.md (a row per preset and per scale group beside the paper's TERL
-    numbers, and which of the paper's goals are met) and DIR/results.png (success rate,
-    travel time and collision ratio against the number of pursuers). The figure needs
-    matplotlib: pip install -e '.[report]'. A progress bar goes to stderr. Existing
-    results files (the shipped docs/results.* included) are replaced only with --force,
-    and only once both new files are complete."""
+    the released small-scale config's, and write DIR/results.md (a row per preset and per
+    scale group beside the paper's TERL numbers, and which of the paper's goals are met)
+    and DIR/results.png (success rate, travel time and collision ratio against the
+    number of pursuers). The figure needs matplotlib: pip install -e '.[report]'. A
+    progress bar goes to stderr. Existing results files (the shipped docs/results.*
+    included) are replaced only with --force, and only once both new files are complete.
+
+    Several policies (--policy repeated, or a folder) are compared as the paper compares
+    TERL, IQN, DQN, MEAN, w/o RE and w/o TS (method names from each file's terl.model):
+    DIR/comparison.md (the paper's claims checked, Table III on CC, Table IV the
+    ablation, each beside the paper's numbers, with 95 % intervals), DIR/comparison.png
+    (Fig. 3: one line a method) and DIR/comparison.json."""
     try:
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
@@ -102,16 +135,22 @@ def report_command(policy_path, scenario_names, episodes, seed, max_steps, worke
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise BadInput(f"--out {out} is a file; name a folder")
+    files = policy_files(policy_paths)
+    command = command_line(policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force)
+    if len(files) > 1:
+        compare_policies(files, scenario_names, episodes, seed, max_steps, workers, threads, out_dir, as_json, force,
+                         command)
+        return
+    policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
-    scenarios = resolve_scenarios(scenario_names, None, None if scenario_names else "paper")
+    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=threads if workers == 1 else None)
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy.path)], force)
     results = evaluate_with_progress(
         policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
     )
-    command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, force)
     info = policy_info(policy)
     staging = out_dir / f".results.{os.getpid()}.partial"
     try:
@@ -134,3 +173,54 @@ def report_command(policy_path, scenario_names, episodes, seed, max_steps, worke
     click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
     click.echo(textwrap.fill(where_it_stands(results), width=100))
     click.echo(f"wrote {paths.markdown} and {paths.figure}")
+
+
+def compare_policies(
+    files: list[str],
+    scenario_names: tuple[str, ...],
+    episodes: int,
+    seed: int,
+    max_steps: int | None,
+    workers: int,
+    threads: int | None,
+    out_dir: Path,
+    as_json: bool,
+    force: bool,
+    command: str,
+) -> None:
+    """`terl-rt report` with several policies: open them all (refusing two of one method),
+    evaluate each on the scenarios in turn, in the paper's order of methods, and write
+    comparison.md, .png and .json."""
+    outputs = (comparison.MARKDOWN_NAME, comparison.FIGURE_NAME, comparison.JSON_NAME)
+    for name in outputs:
+        check_output(out_dir / name, "--out", [("--policy", path) for path in files], force)
+    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
+    policies = [open_policy(path, threads=threads if workers == 1 else None) for path in files]
+    methods = [(comparison.method_name(policy.name), policy) for policy in policies]
+    try:
+        comparison.check_methods([(method, str(policy.path)) for method, policy in methods])
+    except comparison.ComparisonError as error:
+        raise BadInput(f"--policy: {error}") from error
+    runs = []
+    for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
+        click.echo(f"{method}: {policy.path}", err=True)
+        results = evaluate_with_progress(
+            policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
+        )
+        runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
+    staging = out_dir / f".comparison.{os.getpid()}.partial"
+    try:
+        written = comparison.write_comparison(runs, staging, command)
+        data = json.loads(written.json.read_text())
+        for name in outputs:
+            os.replace(staging / name, out_dir / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+    paths = dict(zip(("markdown", "figure", "json"), (str(out_dir / name) for name in outputs)))
+    if as_json:
+        click.echo(json.dumps({**data, "files": paths}))
+        return
+    for check in data["claims"]:
+        click.echo(f"{check['verdict']:<19} {check['claim']}")
+    click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")

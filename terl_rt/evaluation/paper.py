@@ -5,6 +5,10 @@ pursuers), medium (48, 51, 56), large (72, 76, 80), and the CC scenario (28 purs
 14 evaders) alone; 20 episodes a scenario. Every row is (success rate, travel time in
 s, collision ratio), as world.md section 10 defines them.
 
+The authors' released small-scale evaluation config runs 7 / 11 / 15 pursuers, not the
+table's 11 / 15 / 19 (policy.md section 2), so reports add it as a group of its own,
+"small (released config)", measured against the paper's small-scale numbers.
+
 The paper prints two different TERL rows for CC: 0.80 / 226.78 s / 0.03 in its CC
 comparison and 1.00 / 194.05 s / 0.02 in its ablation. Both are kept; the goals use
 the comparison row, the one set against the baselines.
@@ -17,16 +21,34 @@ from dataclasses import dataclass
 TERL = "TERL"
 """The paper's name for its own method in every table."""
 
+PAPER_METHODS: dict[str, str] = {
+    "terl": TERL, "iqn": "IQN", "dqn": "DQN", "mean": "MEAN", "terl-no-re": "w/o RE", "terl-no-ts": "w/o TS",
+}
+"""The paper's name of each model (the `terl.model` metadata, policy.md section 1), in its order."""
+
+BASELINES: tuple[str, ...] = ("IQN", "DQN", "MEAN")
+"""The methods the paper compares TERL with (its Fig. 3 and CC table)."""
+
+ABLATIONS: tuple[str, ...] = ("w/o RE", "w/o TS")
+"""TERL without relation extraction and without target selection (its ablation table)."""
+
 SCALE_GROUPS: tuple[str, ...] = ("small", "medium", "large", "CC")
 """The scale groups the paper reports, in its order."""
+
+SMALL_RELEASED = "small (released config)"
+"""The group of the released small-scale evaluation config (small-published-7, -11, -15)."""
+
+REPORT_GROUPS: tuple[str, ...] = ("small", SMALL_RELEASED, "medium", "large", "CC")
+"""The groups a report summarises: the paper's, with the released small config after small."""
 
 PRESET_GROUPS: dict[str, str] = {
     "small-11": "small", "small-15": "small", "small-19": "small",
     "medium-48": "medium", "medium-51": "medium", "medium-56": "medium",
     "large-72": "large", "large-76": "large", "large-80": "large",
     "cc-28": "CC",
+    "small-published-7": SMALL_RELEASED, "small-published-11": SMALL_RELEASED, "small-published-15": SMALL_RELEASED,
 }
-"""Scale group of each evaluation preset (world.md section 11)."""
+"""Report group of each evaluation preset (world.md section 11)."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +120,11 @@ GOALS: dict[str, Goal] = {
 
 
 def scale_group(scenario_name: str) -> str | None:
-    """The scale group of an evaluation preset ('small', 'medium', 'large', 'CC'), or
-    None for a scenario the paper does not report (curriculum stages, files)."""
+    """The report group of an evaluation preset (one of REPORT_GROUPS), or None for a
+    scenario the paper does not report (curriculum stages, files)."""
     return PRESET_GROUPS.get(scenario_name)
+
+
+def paper_group(group: str) -> str:
+    """The paper's scale group whose numbers the report group `group` is measured against."""
+    return "small" if group == SMALL_RELEASED else group

@@ -4,7 +4,9 @@
 markdown page (the policy, the command, the date; a row per preset beside the paper's
 TERL row for its scale group; a row per scale group; which of the paper's goals are
 met) and a figure in the manner of the paper's Fig. 3 (success rate, travel time and
-collision ratio against the number of pursuers).
+collision ratio against the number of pursuers). `plot_comparison` draws that figure
+for several methods at once, for `terl_rt.evaluation.comparison`, which shares the
+helpers below (group summaries and the wording of intervals, run settings and caveats).
 
 matplotlib draws the figure; it is an optional extra (`pip install -e '.[report]'`),
 imported only when a figure is drawn.
@@ -22,9 +24,21 @@ from typing import NamedTuple
 
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.stats import CI_METRICS, format_interval, mean_intervals
-from terl_rt.evaluation.paper import ABLATION_TABLE, CC_TABLE, GOALS, PRESET_GROUPS, SCALE_GROUPS, TERL, TERL_BY_GROUP, scale_group
+from terl_rt.evaluation.paper import (
+    ABLATION_TABLE,
+    CC_TABLE,
+    GOALS,
+    PRESET_GROUPS,
+    REPORT_GROUPS,
+    SCALE_GROUPS,
+    SMALL_RELEASED,
+    TERL,
+    TERL_BY_GROUP,
+    paper_group,
+    scale_group,
+)
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from terl_rt.sim.scenario import PRESETS
+from terl_rt.sim.scenario import PAPER_SUITE, PRESETS, PUBLISHED_SMALL_SUITE
 
 MARKDOWN_NAME = "results.md"
 FIGURE_NAME = "results.png"
@@ -33,6 +47,9 @@ PAPER_EPISODES = 20
 PAPER_MAX_STEPS = 1000
 """Step limit of the paper's evaluation episodes (world.md section 10)."""
 INSTALL_HINT = "pip install -e '.[report]'"
+REPORT_SUITE: tuple[str, ...] = PAPER_SUITE[:3] + PUBLISHED_SMALL_SUITE + PAPER_SUITE[3:]
+"""The presets `terl-rt report` evaluates by default: the paper's 10, with the released
+small-scale config after the table's small presets."""
 
 
 class MatplotlibMissing(ImportError):
@@ -51,7 +68,8 @@ class GroupSummary:
     """This policy's mean over the evaluated presets of one scale group (each preset weighs the same)."""
 
     group: str
-    """'small', 'medium', 'large' or 'CC'."""
+    """one of `terl_rt.evaluation.paper.REPORT_GROUPS`: 'small', 'small (released config)',
+    'medium', 'large' or 'CC'."""
     presets: tuple[str, ...]
     """the group's presets that were evaluated, in the order given."""
     success_rate: float
@@ -90,10 +108,10 @@ class GoalCheck:
 
 
 def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
-    """Per scale group with at least one evaluated preset, in the paper's order: the mean
-    of the presets' success rates, mean travel times (s) and mean collision ratios."""
+    """Per report group with at least one evaluated preset, in REPORT_GROUPS' order: the
+    mean of the presets' success rates, mean travel times (s) and mean collision ratios."""
     summaries = []
-    for group in SCALE_GROUPS:
+    for group in REPORT_GROUPS:
         members = [r for r in results if scale_group(r.name) == group]
         if not members:
             continue
@@ -112,15 +130,16 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
 
 
 def goal_checks(results: Sequence[ScenarioResult]) -> list[GoalCheck]:
-    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated scale group: success
-    rate at or above, travel time (s) and collision ratio at or under the bound.
+    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated report group (the
+    released small config: small scale's): success rate at or above, travel time (s) and
+    collision ratio at or under the bound.
 
     A short travel time counts only with the success goal met: episodes that end
     early because too few pursuers are left are not fast encirclements.
     """
     checks = []
     for summary in group_summaries(results):
-        goal = GOALS[summary.group]
+        goal = GOALS[paper_group(summary.group)]
         succeeds = summary.success_rate >= goal.min_success_rate - 1e-9
         for metric, value, bound, met in (
             ("success rate", summary.success_rate, goal.min_success_rate, succeeds),
@@ -144,15 +163,15 @@ def where_it_stands(results: Sequence[ScenarioResult]) -> str:
         own = [c for c in checks if c.group == group]
         met = [c for c in own if c.met]
         missed = [c for c in own if not c.met]
-        where = f"{_group_title(group)} ({', '.join(summary.presets)})"
+        where = f"{group_title(group)} ({', '.join(summary.presets)})"
         if not missed:
-            sentences.append(f"{where} meets all three goals: {_join(_shown(c) for c in own)}.")
+            sentences.append(f"{where} meets all three goals: {join_words(_shown(c) for c in own)}.")
         elif not met:
-            sentences.append(f"{where} misses all three goals: {_join(_shown(c) for c in own)}.")
+            sentences.append(f"{where} misses all three goals: {join_words(_shown(c) for c in own)}.")
         else:
             sentences.append(
-                f"{where} meets {len(met)} of 3 goals, {_join(_shown(c) for c in met)}, "
-                f"and misses {_join(_shown(c) for c in missed)}."
+                f"{where} meets {len(met)} of 3 goals, {join_words(_shown(c) for c in met)}, "
+                f"and misses {join_words(_shown(c) for c in missed)}."
             )
     if checks:
         sentences.append(f"In all, {sum(c.met for c in checks)} of {len(checks)} goals are met.")
@@ -161,20 +180,40 @@ def where_it_stands(results: Sequence[ScenarioResult]) -> str:
 
     missing = [g for g in SCALE_GROUPS if g not in summaries]
     if checks and missing:
-        sentences.append(f"Not evaluated: {_join(_group_title(g, lower=True) for g in missing)}.")
+        sentences.append(f"Not evaluated: {join_words(group_title(g, lower=True) for g in missing)}.")
     unreported = [r.name for r in results if scale_group(r.name) is None]
     if unreported:
         sentences.append(f"The paper reports nothing for {', '.join(unreported)}; those rows are not compared.")
+    note = comparability_note(results)
+    if note:
+        sentences.append(note)
+    return " ".join(sentences)
+
+
+def comparability_note(results: Sequence[ScenarioResult]) -> str:
+    """A sentence saying the runs are indicative only when their episodes or step limit
+    differ from the paper's (20 episodes, 1000 steps); empty when they match."""
     episodes = sorted({r.episodes for r in results})
     max_steps = sorted({r.max_steps for r in results})
-    if results and (episodes != [PAPER_EPISODES] or max_steps != [PAPER_MAX_STEPS]):
-        sentences.append(
-            f"These runs used {_join((str(e) for e in episodes), 'or')} "
-            f"{'episode' if episodes == [1] else 'episodes'} a scenario and a step limit of "
-            f"{_join((str(s) for s in max_steps), 'or')}, not the paper's {PAPER_EPISODES} and "
-            f"{PAPER_MAX_STEPS}, so the comparison is indicative only."
-        )
-    return " ".join(sentences)
+    if not results or (episodes == [PAPER_EPISODES] and max_steps == [PAPER_MAX_STEPS]):
+        return ""
+    return (
+        f"These runs used {join_words((str(e) for e in episodes), 'or')} "
+        f"{'episode' if episodes == [1] else 'episodes'} a scenario and a step limit of "
+        f"{join_words((str(s) for s in max_steps), 'or')}, not the paper's {PAPER_EPISODES} and "
+        f"{PAPER_MAX_STEPS}, so the comparison is indicative only."
+    )
+
+
+def run_settings(results: Sequence[ScenarioResult]) -> str:
+    """'20, episode k with seed 0 + k; step limit 1000 decision steps of 0.5 s': the
+    episodes a scenario, seeds and step limits of `results`."""
+    seeds = sorted({r.seed for r in results})
+    return (
+        f"{join_words((str(e) for e in sorted({r.episodes for r in results})), 'or')}, "
+        f"episode k with seed {join_words((str(s) for s in seeds), 'or')} + k; step limit "
+        f"{join_words((str(s) for s in sorted({r.max_steps for r in results})), 'or')} decision steps of 0.5 s"
+    )
 
 
 # --- markdown -----------------------------------------------------------------------
@@ -190,20 +229,18 @@ def render_markdown(
     """The text of results.md. `policy_info` as `terl_rt.policy.onnx_policy.policy_info` makes
     it: name, sha256, path and metadata (a dict of the ONNX metadata_props)."""
     metadata = policy_info.get("metadata") or {}
+    released = any(scale_group(r.name) == SMALL_RELEASED for r in results)
     name = policy_info.get("name", "unknown policy")
-    seeds = sorted({r.seed for r in results})
     lines = [
         f"# {name} against the TERL paper",
         "",
         f"- policy: `{name}`" + (f" (`{policy_info['path']}`)" if policy_info.get("path") else ""),
         f"- sha256: `{str(policy_info.get('sha256', ''))[:12]}`",
-        f"- training steps: {_training_steps(metadata.get(META_TRAINING_STEPS))}"
+        f"- training steps: {training_steps_text(metadata.get(META_TRAINING_STEPS))}"
         + (f", trained on {metadata[META_TRAINED_ON]}" if metadata.get(META_TRAINED_ON) else ""),
         f"- command: `{command}`",
         f"- date: {date.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC",
-        f"- episodes a scenario: {_join((str(e) for e in sorted({r.episodes for r in results})), 'or')}, "
-        f"episode k with seed {_join((str(s) for s in seeds), 'or')} + k; step limit "
-        f"{_join((str(s) for s in sorted({r.max_steps for r in results})), 'or')} decision steps of 0.5 s",
+        f"- episodes a scenario: {run_settings(results)}",
         "",
         f"![success rate, travel time and collision ratio against the number of pursuers]({figure_name})",
         "",
@@ -213,8 +250,10 @@ def render_markdown(
         "",
         "The goals are the paper's TERL numbers (policy.md section 4): success rate 1.00 at small, "
         "medium and large scale and 0.80 on CC, collision ratio at most 0.03, and travel time at or "
-        f"under {_join(f'{GOALS[g].max_travel_time_s:.0f} s' for g in SCALE_GROUPS)} "
-        f"({_join(_group_title(g, lower=True) for g in SCALE_GROUPS)}).",
+        f"under {join_words(f'{GOALS[g].max_travel_time_s:.0f} s' for g in SCALE_GROUPS)} "
+        f"({join_words(group_title(g, lower=True) for g in SCALE_GROUPS)})."
+        + (f" The released small-scale config ({', '.join(PUBLISHED_SMALL_SUITE)}) is held to the "
+           "small-scale goals." if released else ""),
         "",
         "## Per preset",
         "",
@@ -232,9 +271,9 @@ def render_markdown(
         paper = _paper_cells(group)
         ci = r.ci95()
         lines.append(
-            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{_ci(ci, 'success_rate', 2)} "
-            f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f}{_ci(ci, 'travel_time_s', 1)} "
-            f"| {r.collision_ratio_mean:.3f}{_ci(ci, 'collision_ratio', 3)} | {paper} |"
+            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{ci_text(ci, 'success_rate', 2)} "
+            f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f}{ci_text(ci, 'travel_time_s', 1)} "
+            f"| {r.collision_ratio_mean:.3f}{ci_text(ci, 'collision_ratio', 3)} | {paper} |"
         )
 
     lines += [
@@ -249,12 +288,12 @@ def render_markdown(
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for s in group_summaries(results):
-        paper = TERL_BY_GROUP[s.group]
+        paper = TERL_BY_GROUP[paper_group(s.group)]
         lines.append(
-            f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f}{_ci(s.ci95, 'success_rate', 2)} "
+            f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f}{ci_text(s.ci95, 'success_rate', 2)} "
             f"| {paper.success_rate:.2f} "
-            f"| {s.travel_time_s_mean:.1f}{_ci(s.ci95, 'travel_time_s', 1)} | {paper.travel_time_s:.2f} "
-            f"| {s.collision_ratio_mean:.3f}{_ci(s.ci95, 'collision_ratio', 3)} | {paper.collision_ratio:.2f} |"
+            f"| {s.travel_time_s_mean:.1f}{ci_text(s.ci95, 'travel_time_s', 1)} | {paper.travel_time_s:.2f} "
+            f"| {s.collision_ratio_mean:.3f}{ci_text(s.ci95, 'collision_ratio', 3)} | {paper.collision_ratio:.2f} |"
         )
 
     cc = next((r for r in results if scale_group(r.name) == "CC"), None)
@@ -304,15 +343,14 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
     """Draw the three panels of the paper's Fig. 3 into a PNG at `path`: success rate,
     travel time (s, mean ± std) and collision ratio against the number of pursuers N.
 
-    This policy's small, medium and large presets are one line with markers; the paper's
+    This policy's small, medium and large presets are one line with markers, the released
+    small config's (small-published-*) a dotted line with hollow diamonds; the paper's
     TERL row of each group is a dashed line over the group's N with hollow squares;
     cc-28 (N = 28) is a star, filled for this policy, hollow for the paper.
     """
     figure_class, canvas_class = _agg_figure_classes()
-    ours = sorted(
-        ((PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) in ("small", "medium", "large")),
-        key=lambda pair: pair[0],
-    )
+    ours = _by_pursuers(r for r in results if scale_group(r.name) in ("small", "medium", "large"))
+    released = _by_pursuers(r for r in results if scale_group(r.name) == SMALL_RELEASED)
     cc = [(PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) == "CC"]
     group_pursuers = {
         group: [PRESETS[name].pursuers for name, g in PRESET_GROUPS.items() if g == group] for group in SCALE_GROUPS
@@ -337,13 +375,10 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
         ax.plot(group_pursuers["CC"], [getattr(TERL_BY_GROUP["CC"], paper_field)], "*", color="C3",
                 markerfacecolor="none", markersize=13, label="paper TERL, CC")
         if ours:
-            xs = [n for n, _ in ours]
-            ys = [getattr(r, ours_field) for _, r in ours]
-            if spread_field is None:
-                ax.plot(xs, ys, "o-", color="C0", label="this policy")
-            else:
-                ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in ours], fmt="o-", color="C0",
-                            capsize=3, label="this policy")
+            _draw_series(ax, ours, ours_field, spread_field, "o-", "C0", "this policy")
+        if released:
+            _draw_series(ax, released, ours_field, spread_field, "D:", "C4", "this policy, released small config",
+                         markerfacecolor="none")
         for n, r in cc:
             yerr = None if spread_field is None else [getattr(r, spread_field)]
             ax.errorbar([n], [getattr(r, ours_field)], yerr=yerr, fmt="*", color="C2", markersize=13,
@@ -368,6 +403,102 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
     path = Path(path)
     figure.savefig(path, format="png")
     return path
+
+
+METHOD_SHIFT_N = 0.5
+"""Pursuers: how far apart along N `plot_comparison` draws the methods' points, so that
+their error bars do not hide each other."""
+
+
+def plot_comparison(
+    results_by_method: Mapping[str, Sequence[ScenarioResult]],
+    path: str | os.PathLike,
+    title: str = "",
+) -> Path:
+    """Draw the paper's Fig. 3 for several methods into a PNG at `path`: success rate,
+    travel time (s) and collision ratio against the number of pursuers N, one colour per
+    method (in the mapping's order), every point a preset's mean with its 95 % bootstrap
+    interval (`ScenarioResult.ci95`) as error bars.
+
+    A method's small, medium and large presets are one solid line with dots, the released
+    small config's (small-published-*) a dotted line with hollow diamonds, cc-28 a star;
+    presets the paper does not report are left out. Each method is shifted by
+    METHOD_SHIFT_N pursuers from the one before.
+    """
+    figure_class, canvas_class = _agg_figure_classes()
+    kinds = (
+        ("paper's presets", ("small", "medium", "large"), "o-", {}),
+        ("released small config", (SMALL_RELEASED,), "D:", {"markerfacecolor": "none"}),
+        ("cc-28", ("CC",), "*", {"markersize": 13}),
+    )
+    panels = (
+        ("success rate", "success_rate", "success_rate"),
+        ("travel time (s)", "travel_time_s_mean", "travel_time_s"),
+        ("collision ratio", "collision_ratio_mean", "collision_ratio"),
+    )
+
+    figure = figure_class(figsize=(15.0, 4.8), dpi=110)
+    canvas_class(figure)
+    axes = figure.subplots(1, 3)
+    drawn_kinds = set()
+    for index, (method, results) in enumerate(results_by_method.items()):
+        color = f"C{index % 10}"
+        shift = (index - (len(results_by_method) - 1) / 2) * METHOD_SHIFT_N
+        label = method
+        for kind, groups, fmt, style in kinds:
+            points = _by_pursuers(r for r in results if scale_group(r.name) in groups)
+            if not points:
+                continue
+            drawn_kinds.add(kind)
+            intervals = [r.ci95() for _, r in points]
+            for ax, (_, value_field, ci_name) in zip(axes, panels):
+                ys = [getattr(r, value_field) for _, r in points]
+                below = [max(y - ci[ci_name][0], 0.0) for y, ci in zip(ys, intervals)]
+                above = [max(ci[ci_name][1] - y, 0.0) for y, ci in zip(ys, intervals)]
+                ax.errorbar([n + shift for n, _ in points], ys, yerr=[below, above], fmt=fmt, color=color,
+                            capsize=3, label=label if ax is axes[0] else None, **style)
+            label = None  # one legend entry a method
+    # The line styles in grey, for the legend, after the methods.
+    handles, labels = axes[0].get_legend_handles_labels()
+    for kind, _, fmt, style in kinds:
+        if kind in drawn_kinds:
+            (line,) = axes[0].plot([], [], fmt, color="0.45", **style)
+            handles.append(line)
+            labels.append(kind)
+    for ax, (label, value_field, _) in zip(axes, panels):
+        ax.set_title(label)
+        ax.set_xlabel("pursuers N")
+        ax.grid(True, alpha=0.3)
+        if value_field == "success_rate":
+            ax.set_ylim(-0.05, 1.05)
+        else:
+            top = ax.get_ylim()[1]
+            ax.set_ylim(-0.04 * top, top)  # points at 0 stay visible
+    figure.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
+    if title:
+        figure.suptitle(title)
+    figure.subplots_adjust(left=0.05, right=0.98, bottom=0.24, top=0.85, wspace=0.25)
+    path = Path(path)
+    figure.savefig(path, format="png")
+    return path
+
+
+def _by_pursuers(results) -> list[tuple[int, ScenarioResult]]:
+    """(pursuers N, result) of preset results, by N."""
+    return sorted(((PRESETS[r.name].pursuers, r) for r in results), key=lambda pair: pair[0])
+
+
+def _draw_series(ax, series: Sequence[tuple[int, ScenarioResult]], value_field: str, spread_field: str | None,
+                 fmt: str, color: str, label: str, **style) -> None:
+    """One line of (N, result) points: `value_field` of each result, with `spread_field`
+    (a field of ScenarioResult) as symmetric error bars when given."""
+    xs = [n for n, _ in series]
+    ys = [getattr(r, value_field) for _, r in series]
+    if spread_field is None:
+        ax.plot(xs, ys, fmt, color=color, label=label, **style)
+    else:
+        ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in series], fmt=fmt, color=color,
+                    capsize=3, label=label, **style)
 
 
 def _agg_figure_classes():
@@ -415,7 +546,7 @@ def write_report(
 # --- helpers ------------------------------------------------------------------------
 
 
-def _ci(intervals: Mapping, name: str, digits: int) -> str:
+def ci_text(intervals: Mapping, name: str, digits: int) -> str:
     """' [low, high]' of intervals[name], or nothing when it is unknown (no episodes kept)."""
     interval = intervals.get(name)
     if interval is None or any(math.isnan(v) for v in interval):
@@ -428,7 +559,7 @@ def _mean(values) -> float:
     return math.fsum(values) / len(values)
 
 
-def _join(items, word: str = "and") -> str:
+def join_words(items, word: str = "and") -> str:
     """'a', 'a and b', 'a, b and c'."""
     items = list(items)
     if len(items) <= 1:
@@ -436,10 +567,11 @@ def _join(items, word: str = "and") -> str:
     return f"{', '.join(items[:-1])} {word} {items[-1]}"
 
 
-def _group_title(group: str, lower: bool = False) -> str:
+def group_title(group: str, lower: bool = False) -> str:
+    """'Small scale', 'Small scale, released config', 'CC' (lowercase with `lower`)."""
     if group == "CC":
         return "CC"
-    title = f"{group} scale"
+    title = "small scale, released config" if group == SMALL_RELEASED else f"{group} scale"
     return title if lower else title.capitalize()
 
 
@@ -461,11 +593,12 @@ def _shown(check: GoalCheck) -> str:
 def _paper_cells(group: str | None) -> str:
     if group is None:
         return "— | — | —"
-    paper = TERL_BY_GROUP[group]
+    paper = TERL_BY_GROUP[paper_group(group)]
     return f"{paper.success_rate:.2f} | {paper.travel_time_s:.2f} | {paper.collision_ratio:.2f}"
 
 
-def _training_steps(text: str | None) -> str:
+def training_steps_text(text: str | None) -> str:
+    """The terl.training_steps metadata as '440,000', or why it is unknown."""
     if text is None:
         return "unknown (no terl.training_steps metadata)"
     try:

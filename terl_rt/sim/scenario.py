@@ -100,7 +100,8 @@ class Scenario:
 
     @staticmethod
     def presets() -> tuple[str, ...]:
-        """Names of the presets: the 10 evaluation presets, then the 5 curriculum stages."""
+        """Names of the presets: the 10 evaluation presets of the paper's table, the 3 of the
+        authors' released small-scale evaluation config, then the 5 curriculum stages."""
         return tuple(PRESETS)
 
     @staticmethod
@@ -429,7 +430,8 @@ def _initial_state_from_dict(data: Any) -> InitialState:
 
 # ---------------------------------------------------------------- presets
 def _evaluation(name: str, pursuers: int, evaders: int, obstacles: int, size: float, slots: int) -> Scenario:
-    # Paper Table III: all 8 vortices, init distance 20, clear_r 15, 1000 steps.
+    # Paper Table III (and the released small config): all 8 vortices, init distance 20,
+    # clear_r 15, 1000 steps.
     return Scenario(
         name=name, arena=(size, size), pursuers=pursuers, evaders=evaders,
         obstacles=obstacles, vortices=8, evader_slots=slots, max_steps=1000,
@@ -454,6 +456,11 @@ PAPER_SUITE: tuple[str, ...] = (
 )
 """The 10 evaluation presets of the paper (Table III), in the paper's order."""
 
+PUBLISHED_SMALL_SUITE: tuple[str, ...] = ("small-published-7", "small-published-11", "small-published-15")
+"""The small-scale evaluation config the authors released with their code (policy.md
+section 2): 7 / 11 / 15 pursuers with 2 / 3 / 4 evaders and 2 / 4 / 6 obstacles, not the
+table's 11 / 15 / 19; the rest (arena 120, E = 8, 8 vortices, 1000 steps) is small scale's."""
+
 CURRICULUM_STARTS: tuple[tuple[int, str], ...] = (
     (0, "curriculum-1"),
     (2_000_000, "curriculum-2"),
@@ -476,6 +483,9 @@ PRESETS: dict[str, Scenario] = {
         _evaluation("large-76", 76, 19, 8, 220.0, 20),
         _evaluation("large-80", 80, 20, 8, 220.0, 20),
         _evaluation("cc-28", 28, 14, 8, 200.0, 12),
+        _evaluation("small-published-7", 7, 2, 2, 120.0, 8),
+        _evaluation("small-published-11", 11, 3, 4, 120.0, 8),
+        _evaluation("small-published-15", 15, 4, 6, 120.0, 8),
         _curriculum(1, 3, 1, 0, 4, 10.0),
         _curriculum(2, 4, 1, 1, 6, 13.0),
         _curriculum(3, 7, 2, 2, 8, 15.0),

@@ -1,0 +1,585 @@
+"""Several policies set against the paper's comparison: docs/comparison.md, .png and .json.
+
+The paper compares TERL with IQN, DQN and MEAN (its Fig. 3 and the CC table, Table III)
+and with its ablations w/o RE and w/o TS (Table IV); policy.md section 4 holds its
+numbers and claims. `write_comparison` takes one `MethodRun` a policy (its evaluations
+on the same scenarios) and writes:
+
+- a figure in the form of Fig. 3 (`terl_rt.evaluation.report.plot_comparison`);
+- Table III: every method on CC beside the paper's numbers;
+- Table IV: TERL, w/o RE and w/o TS per scale group beside the paper's ablation;
+- every method per scale group;
+- the paper's claims, each checked on the measured group means (`claim_checks`);
+- the same as JSON, for scripts.
+
+Every measured number has its 95 % bootstrap interval (`terl_rt.evaluation.stats`): group
+means resample the episodes within each preset (`report.group_summaries`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import operator
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import NamedTuple
+
+from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.paper import (
+    ABLATION_TABLE,
+    ABLATIONS,
+    BASELINES,
+    CC_TABLE,
+    PAPER_METHODS,
+    REPORT_GROUPS,
+    SCALE_GROUPS,
+    SMALL_RELEASED,
+    TERL,
+    PaperResult,
+    paper_group,
+)
+from terl_rt.evaluation.report import (
+    GroupSummary,
+    ci_text,
+    comparability_note,
+    group_summaries,
+    join_words,
+    plot_comparison,
+    require_matplotlib,
+    run_settings,
+    training_steps_text,
+)
+from terl_rt.evaluation.stats import format_interval
+from terl_rt.policy.contract import META_TRAINING_STEPS
+
+MARKDOWN_NAME = "comparison.md"
+FIGURE_NAME = "comparison.png"
+JSON_NAME = "comparison.json"
+
+REPRODUCES = "reproduces"
+DOES_NOT_REPRODUCE = "does not reproduce"
+NOT_MEASURED = "not measured"
+FIG3_METHODS: tuple[str, ...] = (TERL, *BASELINES)
+"""The methods of the paper's Fig. 3: TERL and its baselines."""
+
+
+class ComparisonError(ValueError):
+    """Policies that cannot be compared side by side; the message names them."""
+
+
+class ComparisonPaths(NamedTuple):
+    """The files `write_comparison` wrote."""
+
+    markdown: Path
+    figure: Path
+    json: Path
+
+
+@dataclass(frozen=True)
+class MethodRun:
+    """One policy's evaluations in a comparison."""
+
+    method: str
+    """the paper's name of its model (`method_name`): TERL, IQN, DQN, MEAN, w/o RE, w/o TS,
+    or the model's own name for a model the paper does not have."""
+    policy: Mapping
+    """name, sha256, path and metadata, as `terl_rt.policy.onnx_policy.policy_info` gives them."""
+    results: tuple[ScenarioResult, ...]
+    """its evaluations, one a scenario."""
+
+
+def method_name(model: str) -> str:
+    """The paper's name of a model (`terl.model` metadata: terl -> TERL, terl-no-re -> w/o RE,
+    ...); a model the paper does not have keeps its own name."""
+    return PAPER_METHODS.get(model, model)
+
+
+def check_methods(policies: Sequence[tuple[str, str]]) -> None:
+    """Raise ComparisonError when two of the (method, policy path) pairs are one method."""
+    seen: dict[str, str] = {}
+    for method, path in policies:
+        if method in seen:
+            raise ComparisonError(
+                f"{seen[method]} and {path} are both method {method!r}; compare one policy a method"
+            )
+        seen[method] = path
+
+
+def paper_order(method: str) -> int:
+    """Sort key of a method: its place in the paper's order (TERL, IQN, DQN, MEAN, w/o RE,
+    w/o TS); methods the paper does not have come after them (a stable sort keeps their order)."""
+    order = list(PAPER_METHODS.values())
+    return order.index(method) if method in order else len(order)
+
+
+# --- tables -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TableRow:
+    """One method's mean over the presets of one report group, beside the paper's row."""
+
+    method: str
+    measured: GroupSummary
+    """its group mean with 95 % intervals (`report.group_summaries`)."""
+    paper: PaperResult | None
+    """the paper's row for this method and group in the table at hand; None where it has none."""
+
+    def to_dict(self) -> dict:
+        return {
+            "method": self.method, **self.measured.to_dict(),
+            "paper": None if self.paper is None else asdict(self.paper),
+        }
+
+
+def method_groups(runs: Sequence[MethodRun]) -> dict[str, dict[str, GroupSummary]]:
+    """method -> report group -> its group summary, for every group the method was evaluated on."""
+    return {run.method: {s.group: s for s in group_summaries(run.results)} for run in runs}
+
+
+def table_iii(runs: Sequence[MethodRun]) -> list[TableRow]:
+    """CC (cc-28): every method evaluated on it, beside the paper's CC comparison (w/o RE
+    and w/o TS: its ablation table, the only one that has them on CC)."""
+    rows = []
+    for method, groups in method_groups(runs).items():
+        if "CC" in groups:
+            paper = CC_TABLE.get(method) or ABLATION_TABLE.get(("CC", method))
+            rows.append(TableRow(method, groups["CC"], paper))
+    return rows
+
+
+def table_iv(runs: Sequence[MethodRun]) -> list[TableRow]:
+    """TERL, w/o RE and w/o TS per report group, beside the paper's ablation table (the
+    released small config beside its small-scale rows)."""
+    by_method = method_groups(runs)
+    return [
+        TableRow(method, by_method[method][group], ABLATION_TABLE.get((paper_group(group), method)))
+        for group in REPORT_GROUPS
+        for method in (TERL, *ABLATIONS)
+        if group in by_method.get(method, {})
+    ]
+
+
+# --- claims -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Measure:
+    """One method's mean of one metric over one group's presets."""
+
+    label: str
+    """'IQN large' (method and group)."""
+    metric: str
+    """'success_rate', 'travel_time_s' or 'collision_ratio' (CI_METRICS)."""
+    value: float
+    """success rate and collision ratio in [0, 1], travel time in s."""
+    ci95: tuple[float, float] | None
+    """its 95 % interval; None for the paper's numbers."""
+
+    def shown(self) -> str:
+        """'IQN large success 0.65 [0.45, 0.85]'."""
+        word, digits, unit = _SHOWN[self.metric]
+        interval = "" if self.ci95 is None else " " + format_interval(self.ci95, digits)
+        return f"{self.label} {word} {self.value:.{digits}f}{unit}{interval}"
+
+
+_SHOWN = {
+    "success_rate": ("success", 2, ""), "travel_time_s": ("time", 1, " s"), "collision_ratio": ("collisions", 3, ""),
+}
+"""metric -> (its word in a claim's measured figures, decimals, unit)."""
+_TOLERANCE = 1e-9
+_OPERATORS: dict[str, Callable[[float, float], bool]] = {
+    ">": operator.gt,
+    "<": operator.lt,
+    ">=": lambda a, b: a >= b - _TOLERANCE,
+    "<=": lambda a, b: a <= b + _TOLERANCE,
+}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """`left op right`: a measured figure against another or against a bound."""
+
+    left: Measure
+    op: str
+    """'>', '<', '>=' or '<='."""
+    right: Measure | float
+
+    def holds(self) -> bool:
+        """True when the means (or the mean and the bound) satisfy the comparison."""
+        right = self.right.value if isinstance(self.right, Measure) else self.right
+        return _OPERATORS[self.op](self.left.value, right)
+
+    def clear(self) -> bool | None:
+        """True when the 95 % intervals give the means' answer too: every value of the left
+        interval against every value of the right one (or the bound) satisfies the
+        comparison when the means do, and fails it when they fail it. None when an
+        interval is unknown."""
+        left = self.left.ci95
+        right = self.right.ci95 if isinstance(self.right, Measure) else (self.right, self.right)
+        if left is None or right is None or any(math.isnan(v) for v in (*left, *right)):
+            return None
+        upward = self.op in (">", ">=")
+        if self.holds():
+            return _OPERATORS[self.op](left[0], right[1]) if upward else _OPERATORS[self.op](left[1], right[0])
+        # Failed: the opposite comparison must hold between the intervals' far ends.
+        return not (_OPERATORS[self.op](left[1], right[0]) if upward else _OPERATORS[self.op](left[0], right[1]))
+
+
+class _Measures:
+    """Looks measures up by (method, group, metric) and notes the ones missing."""
+
+    def __init__(self, rows: Mapping[tuple[str, str], tuple[Mapping[str, float], Mapping | None]]):
+        self.rows = rows
+        """(method, group) -> (metric -> value, metric -> 95 % interval or None)."""
+        self.missing: list[str] = []
+
+    def get(self, method: str, group: str, metric: str) -> Measure:
+        label = f"{method} {group}"
+        if (method, group) not in self.rows:
+            if label not in self.missing:
+                self.missing.append(label)
+            return Measure(label, metric, math.nan, None)
+        values, intervals = self.rows[(method, group)]
+        return Measure(label, metric, values[metric], None if intervals is None else tuple(intervals[metric]))
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A claim of the paper, the criterion it is checked by and that criterion's comparisons."""
+
+    claim: str
+    criterion: str
+    comparisons: Callable[[_Measures], list[Comparison]]
+
+
+def _success(measures: _Measures, method: str, group: str) -> Measure:
+    return measures.get(method, group, "success_rate")
+
+
+def _claims() -> tuple[Claim, ...]:
+    """policy.md section 4's claims, each with a simple criterion on the group means."""
+    claims = [
+        Claim(
+            "At small scale every method succeeds in over 95 % of episodes"
+            + (" (released config)" if group == SMALL_RELEASED else ""),
+            "success rate > 0.95 for each of TERL, IQN, DQN and MEAN at small scale"
+            + (" (released config)" if group == SMALL_RELEASED else ""),
+            lambda f, group=group: [Comparison(_success(f, m, group), ">", 0.95) for m in FIG3_METHODS],
+        )
+        for group in ("small", SMALL_RELEASED)
+    ]
+    claims.append(Claim(
+        "TERL keeps 100 % success at medium and large scale",
+        "TERL's success rate = 1.00 at medium and at large scale",
+        lambda f: [Comparison(_success(f, TERL, group), ">=", 1.0) for group in ("medium", "large")],
+    ))
+    claims += [
+        Claim(
+            f"{method} degrades with scale",
+            f"{method}'s success rate at large scale < at small scale",
+            lambda f, method=method: [Comparison(_success(f, method, "large"), "<", _success(f, method, "small"))],
+        )
+        for method in ("IQN", "DQN")
+    ]
+    claims.append(Claim(
+        "MEAN does worst",
+        "MEAN's success rate < each of TERL's, IQN's and DQN's, at medium and at large scale",
+        lambda f: [
+            Comparison(_success(f, "MEAN", group), "<", _success(f, other, group))
+            for group in ("medium", "large") for other in (TERL, "IQN", "DQN")
+        ],
+    ))
+    claims.append(Claim(
+        "Every baseline fails CC, with about 0.9 of its pursuers collided",
+        "on CC, success rate = 0.00 and collision ratio >= 0.80 for each of IQN, DQN and MEAN",
+        lambda f: [
+            comparison
+            for method in BASELINES
+            for comparison in (
+                Comparison(_success(f, method, "CC"), "<=", 0.0),
+                Comparison(f.get(method, "CC", "collision_ratio"), ">=", 0.80),
+            )
+        ],
+    ))
+    for method, part in (("w/o RE", "relation extraction"), ("w/o TS", "target selection")):
+        claims.append(Claim(
+            f"Removing {part} costs success on CC",
+            f"{method}'s success rate on CC < TERL's",
+            lambda f, method=method: [Comparison(_success(f, method, "CC"), "<", _success(f, TERL, "CC"))],
+        ))
+    for method, part in (("w/o RE", "relation extraction"), ("w/o TS", "target selection")):
+        claims.append(Claim(
+            f"Removing {part} costs travel time at every scale",
+            f"{method}'s travel time > TERL's at small, medium and large scale and on CC",
+            lambda f, method=method: [
+                Comparison(f.get(method, group, "travel_time_s"), ">", f.get(TERL, group, "travel_time_s"))
+                for group in SCALE_GROUPS
+            ],
+        ))
+    return tuple(claims)
+
+
+CLAIMS: tuple[Claim, ...] = _claims()
+"""The claims `claim_checks` checks, in the order of policy.md section 4."""
+
+
+@dataclass(frozen=True)
+class ClaimCheck:
+    """One claim checked on the measured group means."""
+
+    claim: str
+    criterion: str
+    measured: str
+    """the figures compared, with their 95 % intervals; or what was not evaluated."""
+    verdict: str
+    """'reproduces' (every comparison of the criterion holds), 'does not reproduce' or
+    'not measured' (a method or group it needs was not evaluated)."""
+    clear: bool | None
+    """the 95 % intervals give the verdict too, so it is clear of the episodes' noise:
+    every comparison holds between them (reproduces), or one fails between them (does not
+    reproduce). None when not measured or an interval it needs is unknown."""
+    in_paper: str
+    """the same criterion on the paper's own tables: 'holds', 'does not hold', or 'not in
+    its tables' (numbers the paper gives only in its Fig. 3)."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def claim_checks(groups: Mapping[str, Mapping[str, GroupSummary]]) -> list[ClaimCheck]:
+    """Check every claim of CLAIMS on `groups` (method -> report group -> summary, as
+    `method_groups` gives them) and on the paper's own tables."""
+    paper_rows = _paper_rows()
+    measured_rows = {
+        (method, group): (_metrics(s.success_rate, s.travel_time_s_mean, s.collision_ratio_mean), s.ci95)
+        for method, by_group in groups.items()
+        for group, s in by_group.items()
+    }
+    checks = []
+    for claim in CLAIMS:
+        measures = _Measures(measured_rows)
+        comparisons = claim.comparisons(measures)
+        paper = _Measures(paper_rows)
+        paper_comparisons = claim.comparisons(paper)
+        in_paper = ("not in its tables" if paper.missing
+                    else "holds" if all(c.holds() for c in paper_comparisons) else "does not hold")
+        if measures.missing:
+            checks.append(ClaimCheck(claim.claim, claim.criterion, f"not evaluated: {', '.join(measures.missing)}",
+                                     NOT_MEASURED, None, in_paper))
+            continue
+        shown = []
+        for comparison in comparisons:
+            for measure in (comparison.left, comparison.right):
+                if isinstance(measure, Measure) and measure.shown() not in shown:
+                    shown.append(measure.shown())
+        reproduces = all(c.holds() for c in comparisons)
+        # Reproduced: every comparison must be clear; not reproduced: one clear failure is enough.
+        clear = [c.clear() for c in comparisons if reproduces or not c.holds()]
+        if reproduces:
+            verdict_clear = None if None in clear else all(clear)
+        else:
+            verdict_clear = True if True in clear else None if None in clear else False
+        checks.append(ClaimCheck(
+            claim.claim, claim.criterion, "; ".join(shown),
+            REPRODUCES if reproduces else DOES_NOT_REPRODUCE, verdict_clear, in_paper,
+        ))
+    return checks
+
+
+def _paper_rows() -> dict[tuple[str, str], tuple[dict[str, float], None]]:
+    """The paper's tables as (method, group) -> (metric -> value, None): the ablation table,
+    and the CC comparison for the baselines (TERL on CC: the ablation's row, the one set
+    against w/o RE and w/o TS)."""
+    rows = {(method, group): row for (group, method), row in ABLATION_TABLE.items()}
+    rows.update({(method, "CC"): row for method, row in CC_TABLE.items() if method != TERL})
+    return {key: (_metrics(row.success_rate, row.travel_time_s, row.collision_ratio), None) for key, row in rows.items()}
+
+
+def _metrics(success_rate: float, travel_time_s: float, collision_ratio: float) -> dict[str, float]:
+    """The three means by their CI_METRICS names."""
+    return {"success_rate": success_rate, "travel_time_s": travel_time_s, "collision_ratio": collision_ratio}
+
+
+# --- markdown and JSON ----------------------------------------------------------------
+
+
+def render_comparison_markdown(
+    runs: Sequence[MethodRun],
+    command: str,
+    date: datetime,
+    figure_name: str = FIGURE_NAME,
+) -> str:
+    """The text of comparison.md for `runs` (in the order given)."""
+    results = [r for run in runs for r in run.results]
+    groups = method_groups(runs)
+    lines = [
+        f"# {join_words(run.method for run in runs)} against the paper's comparison",
+        "",
+        f"- command: `{command}`",
+        f"- date: {date.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"- episodes a scenario: {run_settings(results)}",
+        "",
+        "| method | model | policy | sha256 | training steps |",
+        "|---|---|---|---|---:|",
+    ]
+    for run in runs:
+        metadata = run.policy.get("metadata") or {}
+        lines.append(
+            f"| {run.method} | {run.policy.get('name', '')} | `{run.policy.get('path', '')}` "
+            f"| `{str(run.policy.get('sha256', ''))[:12]}` | {training_steps_text(metadata.get(META_TRAINING_STEPS))} |"
+        )
+    note = comparability_note(results)
+    cc_ablation = ABLATION_TABLE[("CC", TERL)]
+    lines += [
+        "",
+        f"![success rate, travel time and collision ratio against the number of pursuers, one line a method]"
+        f"({figure_name})",
+        "",
+        "The figure follows the paper's Fig. 3: each point is a preset's mean with its 95 % "
+        "confidence interval (bootstrap over the episodes, fixed seed) as error bars; solid lines "
+        "join the paper's presets, dotted lines the released small-scale config's, stars are CC. "
+        "Where two methods' intervals overlap, these episodes cannot tell them apart.",
+        "",
+        "## Claims",
+        "",
+        "Each claim of the paper (policy.md section 4) is checked by the criterion beside it on "
+        "the group means (each preset of a group weighing the same). *reproduces*: every comparison "
+        "of the criterion holds on the means; *does not reproduce*: one fails; *not measured*: a "
+        "method or group it needs was not evaluated. *clear*: the 95 % intervals give the verdict "
+        "too (every comparison holds between them, or a failing one fails between them), so it "
+        "stands clear of the episodes' noise; *no*: it rests on differences within the intervals, "
+        "which more episodes could overturn. *paper*: the same criterion on the paper's own tables; Fig. 3's numbers "
+        "(IQN, DQN and MEAN below CC) are not in its tables." + (f" {note}" if note else ""),
+        "",
+        "| claim | criterion | measured (95 % interval) | clear | paper | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for check in claim_checks(groups):
+        clear = "—" if check.clear is None else "yes" if check.clear else "no"
+        lines.append(
+            f"| {check.claim} | {check.criterion} | {check.measured} | {clear} | {check.in_paper} "
+            f"| **{check.verdict}** |"
+        )
+
+    lines += [
+        "",
+        "## Table III: CC (cc-28)",
+        "",
+        "28 pursuers, 14 evaders. Beside each method, the paper's CC comparison; w/o RE and w/o TS "
+        "are in its ablation table only, whose TERL row for CC reads "
+        f"{cc_ablation.success_rate:.2f} / {cc_ablation.travel_time_s:.2f} s / {cc_ablation.collision_ratio:.2f}.",
+        "",
+    ]
+    lines += _table(table_iii(runs), with_group=False) or ["cc-28 was not evaluated."]
+    lines += [
+        "",
+        "## Table IV: ablation per scale group",
+        "",
+        "TERL without relation extraction (w/o RE) and without target selection (w/o TS), beside "
+        "the paper's ablation table; the released small-scale config stands beside its small-scale rows.",
+        "",
+    ]
+    lines += _table(table_iv(runs), with_group=True) or ["Neither TERL nor an ablation was evaluated."]
+    lines += [
+        "",
+        "## Every method per scale group",
+        "",
+        "| group | method | presets | success | travel time (s) | collision ratio |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for group in REPORT_GROUPS:
+        for method, by_group in groups.items():
+            if group in by_group:
+                s = by_group[group]
+                lines.append(f"| {group} | {method} | {', '.join(s.presets)} | {_measured_cells(s)} |")
+    return "\n".join(lines) + "\n"
+
+
+def comparison_dict(runs: Sequence[MethodRun], command: str, date: datetime) -> dict:
+    """comparison.json: per method its policy, every scenario (with every episode) and
+    group; the rows of Tables III and IV with the paper's; the claims."""
+    return {
+        "command": command,
+        "date": date.astimezone(timezone.utc).isoformat(),
+        "methods": [
+            {
+                "method": run.method,
+                "policy": dict(run.policy),
+                "scenarios": [result.to_dict(per_episode=True) for result in run.results],
+                "groups": [summary.to_dict() for summary in group_summaries(run.results)],
+            }
+            for run in runs
+        ],
+        "table_iii": [row.to_dict() for row in table_iii(runs)],
+        "table_iv": [row.to_dict() for row in table_iv(runs)],
+        "claims": [check.to_dict() for check in claim_checks(method_groups(runs))],
+    }
+
+
+def write_comparison(
+    runs: Sequence[MethodRun],
+    out_dir: str | os.PathLike,
+    command: str,
+    date: datetime | None = None,
+) -> ComparisonPaths:
+    """Write `out_dir`/comparison.png, comparison.md and comparison.json (the folder is made
+    if missing), the methods in the paper's order (`paper_order`).
+
+    runs: one a policy, each method once (ComparisonError otherwise), at least two;
+    command: the command line that produced them; date: when (default now, UTC).
+    Raises `report.MatplotlibMissing` before writing anything when matplotlib is absent.
+    """
+    if len(runs) < 2:
+        raise ValueError("write_comparison needs at least two MethodRuns; one policy is write_report's")
+    check_methods([(run.method, str(run.policy.get("path", ""))) for run in runs])
+    require_matplotlib()
+    runs = sorted(runs, key=lambda run: paper_order(run.method))
+    date = date or datetime.now(timezone.utc)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figure = plot_comparison(
+        {run.method: run.results for run in runs}, out_dir / FIGURE_NAME,
+        title=f"{join_words(run.method for run in runs)}: means with 95 % confidence intervals",
+    )
+    markdown = out_dir / MARKDOWN_NAME
+    markdown.write_text(render_comparison_markdown(runs, command, date))
+    data = out_dir / JSON_NAME
+    data.write_text(json.dumps(comparison_dict(runs, command, date), indent=1) + "\n")
+    return ComparisonPaths(markdown=markdown, figure=figure, json=data)
+
+
+# --- helpers ------------------------------------------------------------------------
+
+
+def _table(rows: Sequence[TableRow], with_group: bool) -> list[str]:
+    """Markdown lines of a table of `rows` (measured, then the paper's), or [] for none."""
+    if not rows:
+        return []
+    first = "| group | method |" if with_group else "| method |"
+    lines = [
+        f"{first} success | travel time (s) | collision ratio | paper success | paper travel time (s) "
+        "| paper collision ratio |",
+        "|---" * (2 if with_group else 1) + "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        start = f"| {row.measured.group} | {row.method} |" if with_group else f"| {row.method} |"
+        paper = "— | — | —" if row.paper is None else _paper_cells(row.paper)
+        lines.append(f"{start} {_measured_cells(row.measured)} | {paper} |")
+    return lines
+
+
+def _measured_cells(summary: GroupSummary) -> str:
+    return (
+        f"{summary.success_rate:.2f}{ci_text(summary.ci95, 'success_rate', 2)} "
+        f"| {summary.travel_time_s_mean:.1f}{ci_text(summary.ci95, 'travel_time_s', 1)} "
+        f"| {summary.collision_ratio_mean:.3f}{ci_text(summary.ci95, 'collision_ratio', 3)}"
+    )
+
+
+def _paper_cells(row: PaperResult) -> str:
+    return f"{row.success_rate:.2f} | {row.travel_time_s:.2f} | {row.collision_ratio:.2f}"
