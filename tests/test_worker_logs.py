@@ -133,7 +133,8 @@ def test_the_log_of_two_workers_grows_while_the_first_episode_runs(policy_path, 
 
 def test_steps_held_back_for_episode_order_are_written_when_the_run_stops(policy_path, tmp_path):
     """Episode 1's steps wait while episode 0 runs; stopped, the run writes them (unended) too."""
-    from terl_rt.evaluation.episodes import _InOrderLog, run_episode
+    from terl_rt.evaluation.play import run_episode
+    from terl_rt.evaluation.runs import EpisodeSpec, InOrderLog
     from terl_rt.logs.writer import EpisodeLogWriter
     from terl_rt.policy.onnx_policy import policy_info
 
@@ -144,7 +145,8 @@ def test_steps_held_back_for_episode_order_are_written_when_the_run_stops(policy
     finished = []
     log = tmp_path / "held.mcap"
     with EpisodeLogWriter(log, policy_info(policy)) as writer:
-        order = _InOrderLog(scenario, 0, writer, lambda index, metrics: finished.append(index))
+        specs = [EpisodeSpec(0, scenario, k, k) for k in range(3)]
+        order = InOrderLog(specs, writer, lambda index, metrics: finished.append(index))
         for record in streams[1]:
             order.receive("step", 1, record)
         order.receive("end", 1, ends[1])
@@ -179,6 +181,6 @@ def test_a_policy_with_non_finite_outputs_stops_the_run_naming_policy_and_step(t
 
 def test_a_worker_whose_parent_died_while_it_started_ends_at_once():
     # The worker is told its parent's pid; a different parent (it was re-parented) ends it.
-    code = "from terl_rt.evaluation.episodes import _die_with_parent; _die_with_parent(-1); print('alive')"
+    code = "from terl_rt.evaluation.pool import _die_with_parent; _die_with_parent(-1); print('alive')"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert result.returncode == 1 and "alive" not in result.stdout
