@@ -13,6 +13,8 @@ import click
 
 from terl_rt.cli.options import (
     BadInput,
+    address_option,
+    backend_option,
     episodes_option,
     evaluate_with_progress,
     json_option,
@@ -20,7 +22,9 @@ from terl_rt.cli.options import (
     open_policy,
     policy_json,
     policy_option,
+    policy_threads,
     resolve_scenarios,
+    run_backend,
     seed_option,
     threads_option,
     workers_option,
@@ -46,10 +50,12 @@ def command_line(
     episodes: int,
     seed: int,
     max_steps: int | None,
-    workers: int,
+    workers: int | None,
     threads: int | None,
     out: str,
     force: bool = False,
+    backend: str = "local",
+    address: str | None = None,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -60,8 +66,12 @@ def command_line(
     words += ["--episodes", str(episodes), "--seed", str(seed)]
     if max_steps is not None:
         words += ["--max-steps", str(max_steps)]
-    if workers != 1:
+    if workers is not None:
         words += ["--workers", str(workers)]
+    if backend != "local":
+        words += ["--backend", backend]
+    if address is not None:
+        words += ["--address", address]
     if threads is not None:
         words += ["--threads", str(threads)]
     words += ["--out", out]
@@ -80,6 +90,8 @@ def command_line(
 @seed_option
 @max_steps_option
 @workers_option
+@backend_option
+@address_option
 @threads_option
 @click.option(
     "--out", type=str, default="docs", show_default=True, metavar="DIR",
@@ -87,7 +99,9 @@ def command_line(
 )
 @json_option
 @force_option
-def report_command(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
+def report_command(
+    policy_path, scenario_names, episodes, seed, max_steps, workers, backend, address, threads, out, as_json, force,
+) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     write DIR/results.md (a row per preset and per scale group beside the paper's TERL
     numbers, and which of the paper's goals are met) and DIR/results.png (success rate,
@@ -105,13 +119,14 @@ def report_command(policy_path, scenario_names, episodes, seed, max_steps, worke
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names, None, None if scenario_names else "paper")
-    policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy.path)], force)
-    results = evaluate_with_progress(
-        policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
+    with run_backend(backend, workers, address, threads) as runner:
+        results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
+    command = command_line(
+        policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,
     )
-    command = command_line(policy_path, scenario_names, episodes, seed, max_steps, workers, threads, out, force)
     info = policy_info(policy)
     staging = out_dir / f".results.{os.getpid()}.partial"
     try:
