@@ -1,14 +1,18 @@
-"""Speed of the simulator and of policies, `terl-rt bench` (timings are reported, never
-asserted in tests)."""
+"""Speed of the simulator, of policies and of the evaluation backends, `terl-rt bench`
+(timings are reported, never asserted in tests)."""
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from terl_rt.evaluation.backends import open_backend
+from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
@@ -127,4 +131,43 @@ def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: 
         ms_p90=float(np.percentile(ms, 90)),
         us_per_pursuer=float(1e3 * ms.mean() / rows_mean),
         resets=resets,
+    )
+
+
+@dataclass(frozen=True)
+class BackendSpeed:
+    """Time to evaluate a policy on scenarios with one backend, scenario by scenario as
+    `terl-rt eval` and `terl-rt report` do."""
+
+    backend: str
+    workers: int
+    episodes: int
+    """episodes run, all scenarios."""
+    start_s: float
+    """s: opening the backend (starting a local Ray instance; nothing for local)."""
+    run_s: float
+    """s: running every episode (local worker processes start inside it, per scenario)."""
+    episodes_per_s: float
+    per_episode: tuple[EpisodeMetrics, ...] = field(repr=False)
+    """every episode's metrics, scenario by scenario (to check that backends agree)."""
+
+    def to_dict(self) -> dict:
+        return {key: value for key, value in asdict(self).items() if key != "per_episode"}
+
+
+def backend_speed(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, backend: str, workers: int,
+                  max_steps: int | None = None) -> BackendSpeed:
+    """Open `backend` with `workers` workers (a Ray backend starts its own local instance),
+    evaluate `policy` on each scenario in turn (`episodes` each, episode k with seed + k)
+    and time both; the backend is closed untimed."""
+    start = time.perf_counter()
+    with open_backend(backend, workers) as runner:
+        opened = time.perf_counter()
+        results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=runner)
+                   for scenario in scenarios]
+        run_s = time.perf_counter() - opened
+    total = episodes * len(scenarios)
+    return BackendSpeed(
+        backend=backend, workers=workers, episodes=total, start_s=opened - start, run_s=run_s,
+        episodes_per_s=total / run_s, per_episode=tuple(m for result in results for m in result.per_episode),
     )
