@@ -25,7 +25,7 @@ from terl_rt.cli.options import (
 from terl_rt.evaluation.backends import RayMissing
 from terl_rt.evaluation.speed import (
     SCALING_PURSUERS,
-    backend_speed,
+    backend_speeds,
     policy_speed,
     scaling_scenario,
     simulator_speed,
@@ -118,35 +118,39 @@ def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_jso
     "--workers", "worker_counts", type=click.IntRange(min=1, max=MAX_WORKERS), multiple=True, default=(1, 2),
     show_default=True, help="Worker counts to time (repeat for several).",
 )
+@click.option(
+    "--repeat", type=click.IntRange(min=1, max=100), default=1, show_default=True,
+    help="Rounds of local then Ray runs; each backend's best round counts.",
+)
 @json_option
-def backends_command(policy_path, scenario_names, suite, episodes, seed, max_steps, worker_counts, as_json) -> None:
+def backends_command(policy_path, scenario_names, suite, episodes, seed, max_steps, worker_counts, repeat,
+                     as_json) -> None:
     """Evaluation speed of the local and the Ray backend: for each worker count, the same
     evaluation (scenario by scenario, as `terl-rt eval` and `report` run it) on the local
-    backend and then on a local Ray instance with that many CPUs, back to back so both see
-    the same load on the machine. Prints episodes per second, the time to start Ray (not
-    in the run time), Ray's run time over the local one, and whether every episode came
-    out the same. Needs Ray: pip install -e '.[ray]'."""
+    backend and on a local Ray instance with that many CPUs, in turn, --repeat rounds, so
+    both see the same load on the machine. Prints episodes per second of the best round,
+    the time to start Ray (not in the run time), Ray's run time over the local one, and
+    whether every episode came out the same. Needs Ray: pip install -e '.[ray]'."""
     policy = open_policy(policy_path)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = []
-    with click.progressbar(length=2 * len(worker_counts), label="backends", file=sys.stderr) as bar:
-        for workers in worker_counts:
-            for backend in ("local", "ray"):
-                try:
-                    rows.append(backend_speed(policy, scenarios, episodes, seed, backend, workers, max_steps))
-                except RayMissing as error:
-                    raise BadInput(str(error)) from None
-                bar.update(1)
+    with click.progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
+        for workers in counts:
+            try:
+                rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)
+            except RayMissing as error:
+                raise BadInput(str(error)) from None
     identical = all(row.per_episode == rows[0].per_episode for row in rows)
     if as_json:
         click.echo(json.dumps({
             "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
-            "seed": seed, "max_steps": max_steps, "rows": [row.to_dict() for row in rows], "identical": identical,
+            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
+            "identical": identical,
         }))
         return
     click.echo(
         f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}"
-        + (f", step limit {max_steps}" if max_steps else "")
+        + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
     )
     click.echo(f"{'backend':<9}{'workers':>8}{'episodes':>10}{'start (s)':>11}{'run (s)':>10}{'episodes/s':>12}{'ray/local':>11}")
     for local, ray in zip(rows[::2], rows[1::2]):

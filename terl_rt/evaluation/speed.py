@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -142,12 +143,13 @@ class BackendSpeed:
     backend: str
     workers: int
     episodes: int
-    """episodes run, all scenarios."""
+    """episodes of one run, all scenarios."""
     start_s: float
     """s: opening the backend (starting a local Ray instance; nothing for local)."""
     run_s: float
-    """s: running every episode (local worker processes start inside it, per scenario)."""
+    """s: the best of the runs (local worker processes start inside it, per scenario)."""
     episodes_per_s: float
+    """episodes / run_s."""
     per_episode: tuple[EpisodeMetrics, ...] = field(repr=False)
     """every episode's metrics, scenario by scenario (to check that backends agree)."""
 
@@ -155,19 +157,31 @@ class BackendSpeed:
         return {key: value for key, value in asdict(self).items() if key != "per_episode"}
 
 
-def backend_speed(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, backend: str, workers: int,
-                  max_steps: int | None = None) -> BackendSpeed:
-    """Open `backend` with `workers` workers (a Ray backend starts its own local instance),
-    evaluate `policy` on each scenario in turn (`episodes` each, episode k with seed + k)
-    and time both; the backend is closed untimed."""
-    start = time.perf_counter()
-    with open_backend(backend, workers) as runner:
-        opened = time.perf_counter()
-        results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=runner)
-                   for scenario in scenarios]
-        run_s = time.perf_counter() - opened
+def backend_speeds(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, workers: int,
+                   backends: Sequence[str] = ("local", "ray"), repeat: int = 1,
+                   max_steps: int | None = None) -> list[BackendSpeed]:
+    """Open each backend with `workers` workers (a Ray backend starts its own local
+    instance), then evaluate `policy` on each scenario in turn (`episodes` each, episode k
+    with seed + k) on one backend after the other, `repeat` rounds, so that a load that
+    drifts meets them alike; each backend's best round counts. Closing is not timed."""
+    with ExitStack() as stack:
+        opened, start_s = {}, {}
+        for name in backends:
+            start = time.perf_counter()
+            opened[name] = stack.enter_context(open_backend(name, workers))
+            start_s[name] = time.perf_counter() - start
+        best = dict.fromkeys(backends, math.inf)
+        per_episode = {}
+        for _ in range(repeat):
+            for name in backends:
+                start = time.perf_counter()
+                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[name])
+                           for scenario in scenarios]
+                best[name] = min(best[name], time.perf_counter() - start)
+                per_episode[name] = tuple(m for result in results for m in result.per_episode)
     total = episodes * len(scenarios)
-    return BackendSpeed(
-        backend=backend, workers=workers, episodes=total, start_s=opened - start, run_s=run_s,
-        episodes_per_s=total / run_s, per_episode=tuple(m for result in results for m in result.per_episode),
-    )
+    return [
+        BackendSpeed(backend=name, workers=workers, episodes=total, start_s=start_s[name], run_s=best[name],
+                     episodes_per_s=total / best[name], per_episode=per_episode[name])
+        for name in backends
+    ]
