@@ -54,11 +54,11 @@ class _PolicyRef:
     path: str
     """names the policy (in errors); the file itself is not read by workers."""
     sha256: str
-    threads: int | None
+    threads: int
     model: ray.ObjectRef
 
 
-_worker_policies: dict[tuple[str, int | None], OnnxPolicy] = {}
+_worker_policies: dict[tuple[str, int], OnnxPolicy] = {}
 """(sha256, threads) -> the policy, opened once per worker process."""
 
 
@@ -89,14 +89,14 @@ class RayBackend:
     def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None):
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
             raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
-        self.threads = threads
+        self.threads = 1 if threads is None else threads
         self._started = not ray.is_initialized()
         if self._started:
             _connect(address, workers)
         self.workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._models: dict[str, ray.ObjectRef] = {}
         self._task = ray.remote(episode_task).options(
-            num_cpus=threads or 1, max_retries=EPISODE_RETRIES, retry_exceptions=False,
+            num_cpus=self.threads, max_retries=EPISODE_RETRIES, retry_exceptions=False,
         )
 
     def __enter__(self) -> RayBackend:
