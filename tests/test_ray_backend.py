@@ -16,22 +16,20 @@ import time
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
+from onnx_models import write_constant_policy, write_test_policy
+from processes import alive, assert_all_end, cmdline, descendants, start_eval, wait_for_log
 
-pytest.importorskip("ray")
+from terl_rt.cli.main import cli
+from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.pool import LocalBackend
+from terl_rt.evaluation.sweep import run_sweep
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.resimulate import verify
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.scenario import Scenario
 
-from click.testing import CliRunner  # noqa: E402
-from onnx_models import write_constant_policy, write_test_policy  # noqa: E402
-from processes import alive, assert_all_end, cmdline, descendants, start_eval, wait_for_log  # noqa: E402
-
-from terl_rt.cli.main import cli  # noqa: E402
-from terl_rt.evaluation.episodes import evaluate_policy  # noqa: E402
-from terl_rt.evaluation.pool import LocalBackend  # noqa: E402
-from terl_rt.evaluation.ray_backend import RayBackend  # noqa: E402
-from terl_rt.evaluation.sweep import run_sweep  # noqa: E402
-from terl_rt.logs.reader import EpisodeLogReader  # noqa: E402
-from terl_rt.logs.resimulate import verify  # noqa: E402
-from terl_rt.policy.onnx_policy import OnnxPolicy  # noqa: E402
-from terl_rt.sim.scenario import Scenario  # noqa: E402
+RayBackend = pytest.importorskip("terl_rt.evaluation.ray_backend", reason="needs Ray: pip install -e '.[ray]'").RayBackend
 
 pytestmark = [
     pytest.mark.ray,

@@ -42,7 +42,8 @@ CONNECT_TIMEOUT_S = 10.0
 """s: how long a cluster's address may take to answer before the run gives up."""
 _WAIT_S = 0.1
 """s: longest wait for a message before Ctrl-C is checked again."""
-_HOST_PORT = re.compile(r"^\[?(?P<host>[^\]\s]+?)\]?:(?P<port>\d{1,5})$")
+_HOST_PORT = re.compile(r"^\[?(?P<host>[^\]\s/]+?)\]?:(?P<port>\d{1,5})$")
+"""HOST:PORT (or [IPv6]:PORT) of a cluster's head."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ class RayBackend:
                         raise KeyboardInterrupt
                     ready, _ = ray.wait(list(streams), num_returns=1, timeout=_WAIT_S)
                     for stream in ready:
-                        self._take(stream, streams, specs, deliver)
+                        _take(stream, streams, specs, deliver)
                     submit()
             except BaseException:
                 # Interrupted or failed: the episodes stop; what they sent is delivered.
@@ -143,25 +144,25 @@ class RayBackend:
             self._models[policy.sha256] = ray.put(policy.model)
         return _PolicyRef(str(policy.path), policy.sha256, self.threads, self._models[policy.sha256])
 
-    @staticmethod
-    def _take(stream, streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> None:
-        """Deliver the next item of a ready stream; an ended episode leaves `streams`."""
-        number = streams[stream]
-        try:
-            item = ray.get(next(stream))
-        except RayTaskError as error:
-            raise error.cause from None  # the episode's own exception, e.g. PolicyOutputError
-        except RayError as error:
-            spec = specs[number]
-            raise BackendError(
-                f"episode {spec.index} of {spec.scenario.name} (seed {spec.seed}) could not be run on Ray: "
-                f"{type(error).__name__}: {error}"
-            ) from error
-        if isinstance(item, EpisodeMetrics):
-            del streams[stream]
-            deliver("end", number, item)
-        else:
-            deliver("step", number, item)
+
+def _take(stream, streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> None:
+    """Deliver the next item of a ready stream; an ended episode leaves `streams`."""
+    number = streams[stream]
+    try:
+        item = ray.get(next(stream))
+    except RayTaskError as error:
+        raise error.cause from None  # the episode's own exception, e.g. PolicyOutputError
+    except RayError as error:
+        spec = specs[number]
+        raise BackendError(
+            f"episode {spec.index} of {spec.scenario.name} (seed {spec.seed}) could not be run on Ray: "
+            f"{type(error).__name__}: {error}"
+        ) from error
+    if isinstance(item, EpisodeMetrics):
+        del streams[stream]
+        deliver("end", number, item)
+    else:
+        deliver("step", number, item)
 
 
 def _drain(streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> None:
@@ -169,7 +170,7 @@ def _drain(streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> Non
     for stream in list(streams):
         while stream in streams and ray.wait([stream], timeout=0)[0]:
             try:
-                RayBackend._take(stream, streams, specs, deliver)
+                _take(stream, streams, specs, deliver)
             except Exception:  # the episode failed or was cancelled: the error that stopped the run goes on
                 break
 
