@@ -80,11 +80,12 @@ class RayBackend:
     """Runs episodes as Ray tasks.
 
     address: a running cluster to join (`HOST:PORT` of its head, or `auto`); None starts
-    a local Ray instance with `workers` CPUs (default: every CPU of this machine), shut
-    down again by `close`. A process that has already called `ray.init` keeps its
-    connection (and it stays open). workers: episodes run at once (default: the cluster's
-    CPUs); threads: onnxruntime intra-op threads of each episode's policy, and the CPUs
-    each task asks Ray for (default 1). Raises BackendError when the cluster cannot be reached.
+    a local Ray instance with workers x threads CPUs (default: every CPU of this machine),
+    shut down again by `close`. A process that has already called `ray.init` keeps its
+    connection (and it stays open). workers: episodes run at once (default: as many as the
+    cluster's CPUs hold); threads: onnxruntime intra-op threads of each episode's policy,
+    and the CPUs each task asks Ray for (default 1). Raises BackendError when the cluster
+    cannot be reached.
     """
 
     def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None):
@@ -93,8 +94,8 @@ class RayBackend:
         self.threads = 1 if threads is None else threads
         self._started = not ray.is_initialized()
         if self._started:
-            _connect(address, workers)
-        self.workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+            _connect(address, None if workers is None else workers * self.threads)
+        self.workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // self.threads)
         self._models: dict[str, ray.ObjectRef] = {}
         self._task = ray.remote(episode_task).options(
             num_cpus=self.threads, max_retries=EPISODE_RETRIES, retry_exceptions=False,
@@ -175,11 +176,11 @@ def _drain(streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> Non
                 break
 
 
-def _connect(address: str | None, workers: int | None) -> None:
-    """ray.init: a new local instance with `workers` CPUs, or the cluster at `address`."""
+def _connect(address: str | None, cpus: int | None) -> None:
+    """ray.init: a new local instance with `cpus` CPUs (None: this machine's), or the cluster at `address`."""
     options = {"include_dashboard": False, "logging_level": logging.WARNING}
     if address is None:
-        ray.init(address="local", num_cpus=workers, **options)
+        ray.init(address="local", num_cpus=cpus, **options)
         return
     match = _HOST_PORT.match(address)
     if match:
