@@ -346,7 +346,7 @@ def test_a_folder_without_onnx_files_is_one_error_line(tmp_path):
     (tmp_path / "notes.txt").write_text("no policies here")
     result = invoke("report", "--policy", tmp_path, "--out", tmp_path / "docs")
     assert result.exit_code == 2
-    assert result.stderr == f"Error: --policy {tmp_path} is a folder with no .onnx files\n"
+    assert result.stderr == f"Error: --policy {tmp_path} is a folder without .onnx files\n"
 
 
 def test_two_policies_of_one_method_are_one_error_line(policies, tmp_path):

@@ -16,7 +16,7 @@ from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
 from terl_rt.evaluation.episodes import evaluate_policy as evaluate
-from terl_rt.evaluation.episodes import run_episode
+from terl_rt.evaluation.play import run_episode
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
 from terl_rt.policy.onnx_policy import OnnxPolicy

@@ -6,11 +6,11 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from onnx_models import write_test_policy
+from processes import assert_all_end, children, start_eval, wait_for_log
 
 from terl_rt.evaluation.episodes import evaluate_policy as evaluate
 from terl_rt.logs.reader import EpisodeLogReader
@@ -24,66 +24,23 @@ def policy_path(tmp_path_factory) -> Path:
     return write_test_policy(tmp_path_factory.mktemp("policy") / "linear.onnx")
 
 
-def _children(pid: int) -> set[int]:
-    """Process ids whose parent is `pid` (from /proc)."""
-    found = set()
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as handle:
-                fields = handle.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.add(int(entry))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as handle:
-            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def _start_eval(policy_path: Path, log: Path) -> subprocess.Popen:
-    command = [
-        sys.executable, "-c", "from terl_rt.cli.main import cli; cli()", "eval", "--policy", str(policy_path), "--scenario", "small-11",
-        "--episodes", "6", "--max-steps", "400", "--workers", "2", "--log", str(log),
-    ]
-    return subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def _wait_for_steps(process: subprocess.Popen, log: Path, size: int = 150_000) -> set[int]:
-    """Wait until the log has grown past `size` bytes; return the worker process ids."""
-    deadline = time.monotonic() + 40
-    while (not log.exists() or log.stat().st_size < size) and time.monotonic() < deadline:
-        assert process.poll() is None, "the evaluation ended before it could be stopped"
-        time.sleep(0.05)
-    workers = _children(process.pid)
+def _workers(process: subprocess.Popen, log: Path) -> set[int]:
+    """The worker process ids of a 2-worker `terl-rt eval`, once its log has grown."""
+    wait_for_log(process, log)
+    workers = children(process.pid)
     assert workers, "no worker process found"
     return workers
-
-
-def _assert_no_survivor(workers: set[int]) -> None:
-    deadline = time.monotonic() + 5
-    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    survivors = {pid: open(f"/proc/{pid}/cmdline").read().replace("\0", " ")[:200] for pid in workers if _alive(pid)}
-    assert not survivors, f"a worker outlived its parent: {survivors}"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_a_worker_run_keeps_the_streamed_steps_and_ends_the_workers(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
-    process = _start_eval(policy_path, log)
+    process = start_eval(policy_path, log)
     try:
-        workers = _wait_for_steps(process, log)
+        workers = _workers(process, log)
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
-        _assert_no_survivor(workers)
+        assert_all_end(workers)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
@@ -99,12 +56,12 @@ def test_sigkill_of_a_worker_run_keeps_the_streamed_steps_and_ends_the_workers(p
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_ctrl_c_of_a_worker_run_writes_every_received_step_and_ends_the_workers(policy_path, tmp_path):
     log = tmp_path / "interrupted.mcap"
-    process = _start_eval(policy_path, log)
+    process = start_eval(policy_path, log)
     try:
-        workers = _wait_for_steps(process, log)
+        workers = _workers(process, log)
         os.killpg(process.pid, signal.SIGINT)
         assert process.wait(timeout=20) != 0
-        _assert_no_survivor(workers)
+        assert_all_end(workers)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
@@ -133,7 +90,8 @@ def test_the_log_of_two_workers_grows_while_the_first_episode_runs(policy_path, 
 
 def test_steps_held_back_for_episode_order_are_written_when_the_run_stops(policy_path, tmp_path):
     """Episode 1's steps wait while episode 0 runs; stopped, the run writes them (unended) too."""
-    from terl_rt.evaluation.episodes import _InOrderLog, run_episode
+    from terl_rt.evaluation.play import run_episode
+    from terl_rt.evaluation.runs import EpisodeSpec, InOrderLog
     from terl_rt.logs.writer import EpisodeLogWriter
     from terl_rt.policy.onnx_policy import policy_info
 
@@ -144,7 +102,8 @@ def test_steps_held_back_for_episode_order_are_written_when_the_run_stops(policy
     finished = []
     log = tmp_path / "held.mcap"
     with EpisodeLogWriter(log, policy_info(policy)) as writer:
-        order = _InOrderLog(scenario, 0, writer, lambda index, metrics: finished.append(index))
+        specs = [EpisodeSpec(0, scenario, k, k) for k in range(3)]
+        order = InOrderLog(specs, writer, lambda index, metrics: finished.append(index))
         for record in streams[1]:
             order.receive("step", 1, record)
         order.receive("end", 1, ends[1])
@@ -179,6 +138,6 @@ def test_a_policy_with_non_finite_outputs_stops_the_run_naming_policy_and_step(t
 
 def test_a_worker_whose_parent_died_while_it_started_ends_at_once():
     # The worker is told its parent's pid; a different parent (it was re-parented) ends it.
-    code = "from terl_rt.evaluation.episodes import _die_with_parent; _die_with_parent(-1); print('alive')"
+    code = "from terl_rt.evaluation.pool import _die_with_parent; _die_with_parent(-1); print('alive')"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert result.returncode == 1 and "alive" not in result.stdout

@@ -8,14 +8,28 @@ import sys
 import click
 
 from terl_rt.cli.options import (
+    MAX_WORKERS,
+    BadInput,
+    episodes_option,
     json_option,
+    max_steps_option,
     open_policy,
     policy_option,
+    resolve_scenarios,
     scenario_option,
+    scenarios_option,
     seed_option,
+    suite_option,
     threads_option,
 )
-from terl_rt.evaluation.speed import SCALING_PURSUERS, policy_speed, scaling_scenario, simulator_speed
+from terl_rt.evaluation.backends import RayMissing
+from terl_rt.evaluation.speed import (
+    SCALING_PURSUERS,
+    backend_speeds,
+    policy_speed,
+    scaling_scenario,
+    simulator_speed,
+)
 
 steps_option = click.option(
     "--steps", type=click.IntRange(min=1, max=10_000_000), default=500, show_default=True, help="Timed steps."
@@ -91,3 +105,58 @@ def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_jso
         f"  {result.ms_per_step:.3f} ms per step (p50 {result.ms_p50:.3f}, p90 {result.ms_p90:.3f}), "
         f"{result.us_per_pursuer:.1f} us per pursuer"
     )
+
+
+@bench.command("backends")
+@policy_option
+@scenarios_option
+@suite_option
+@episodes_option
+@seed_option
+@max_steps_option
+@click.option(
+    "--workers", "worker_counts", type=click.IntRange(min=1, max=MAX_WORKERS), multiple=True, default=(1, 2),
+    show_default=True, help="Worker counts to time (repeat for several).",
+)
+@click.option(
+    "--repeat", type=click.IntRange(min=1, max=100), default=1, show_default=True,
+    help="Rounds of local then Ray runs; each backend's best round counts.",
+)
+@json_option
+def backends_command(policy_path, scenario_names, suite, episodes, seed, max_steps, worker_counts, repeat,
+                     as_json) -> None:
+    """Evaluation speed of the local and the Ray backend: for each worker count, the same
+    evaluation (scenario by scenario, as `terl-rt eval` and `report` run it) on the local
+    backend and on a local Ray instance with that many CPUs, in turn, --repeat rounds, so
+    both see the same load on the machine. Prints episodes per second of the best round,
+    the time to start Ray (not in the run time), Ray's run time over the local one, and
+    whether every episode came out the same. Every worker runs its policy on one
+    onnxruntime thread (a local run in this process too). Needs Ray: pip install -e '.[ray]'."""
+    policy = open_policy(policy_path, threads=1)
+    scenarios = resolve_scenarios(scenario_names, None, suite)
+    rows = []
+    with click.progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
+        for workers in counts:
+            try:
+                rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)
+            except RayMissing as error:
+                raise BadInput(str(error)) from None
+    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    if as_json:
+        click.echo(json.dumps({
+            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
+            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
+            "identical": identical,
+        }))
+        return
+    click.echo(
+        f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}"
+        + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
+    )
+    click.echo(f"{'backend':<9}{'workers':>8}{'episodes':>10}{'start (s)':>11}{'run (s)':>10}{'episodes/s':>12}{'ray/local':>11}")
+    for local, ray in zip(rows[::2], rows[1::2]):
+        for row in (local, ray):
+            ratio = f"{row.run_s / local.run_s:.2f}" if row is ray else ""
+            click.echo(f"{row.backend:<9}{row.workers:>8}{row.episodes:>10}{row.start_s:>11.1f}{row.run_s:>10.1f}"
+                       f"{row.episodes_per_s:>12.2f}{ratio:>11}")
+    click.echo(f"every episode the same on every backend and worker count: {'yes' if identical else 'NO'}")

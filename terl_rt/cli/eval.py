@@ -10,6 +10,8 @@ from pathlib import Path
 import click
 
 from terl_rt.cli.options import (
+    address_option,
+    backend_option,
     episodes_option,
     evaluate_with_progress,
     json_option,
@@ -18,7 +20,9 @@ from terl_rt.cli.options import (
     open_policy,
     policy_json,
     policy_option,
+    policy_threads,
     resolve_scenarios,
+    run_backend,
     scenario_file_option,
     scenarios_option,
     seed_option,
@@ -99,6 +103,8 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @seed_option
 @max_steps_option
 @workers_option
+@backend_option
+@address_option
 @log_option
 @json_option
 @click.option(
@@ -108,8 +114,8 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @threads_option
 @force_option
 def eval_command(
-    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, log_path, as_json,
-    csv_path, threads, force,
+    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, log_path,
+    as_json, csv_path, threads, force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s, mean ± std), collision ratio,
     steps and wall time per scenario, with 95 % bootstrap confidence intervals over the
@@ -118,25 +124,28 @@ def eval_command(
     every episode too (seed, outcome, steps, collisions, captures), the step limit and
     the terl-rt and policy versions. An existing --log or --csv file is replaced only
     with --force (and never when it is the policy or scenario file); the log at the
-    first step."""
+    first step. With --backend ray the episodes are Ray tasks (the policy reaches the
+    workers through Ray's object store); their steps stream back to the log as they are
+    taken, and an episode whose worker dies is run again elsewhere, counted once."""
     inputs = [("--policy", policy_path), ("--scenario-file", scenario_file)]
     if log_path:
         check_output(log_path, "--log", inputs, force)
     if csv_path:
         check_output(csv_path, "--csv", inputs + [("--log", log_path)], force)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
-    policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     if log_path:  # the default policy too
         check_output(log_path, "--log", [("--policy", policy.path)], force)
     info = policy_info(policy)
-    log = EpisodeLogWriter(Path(log_path), info, staged=True) if log_path else None
-    try:
-        results = evaluate_with_progress(
-            policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, log=log, threads=threads,
-        )
-    finally:
-        if log is not None:
-            log.close()
+    with run_backend(backend, workers, address, threads) as runner:
+        log = EpisodeLogWriter(Path(log_path), info, staged=True) if log_path else None
+        try:
+            results = evaluate_with_progress(
+                policy, scenarios, episodes, seed, max_steps=max_steps, log=log, backend=runner,
+            )
+        finally:
+            if log is not None:
+                log.close()
 
     if csv_path:
         write_csv(Path(csv_path), results, info)

@@ -13,17 +13,19 @@ from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
 from terl_rt.cli.scenarios import scenarios
+from terl_rt.cli.sweep import sweep_command
+from terl_rt.evaluation.runs import BackendError
 from terl_rt.logs.format import EpisodeLogError
 from terl_rt.logs.render import RenderError
 from terl_rt.policy.contract import ContractError
 from terl_rt.sim.scenario import ScenarioError
 
 USER_ERRORS = (
-    ScenarioError, ContractError, EpisodeLogError, RenderError, OSError, MemoryError,
+    ScenarioError, ContractError, EpisodeLogError, RenderError, OSError, MemoryError, BackendError,
 )
 """Exceptions that mean bad input or a machine that cannot do what was asked (a missing,
-unreadable or unwritable file, a full disk, too little memory): one line on stderr and
-exit status 2 (traceback with --debug)."""
+unreadable or unwritable file, a full disk, too little memory, a Ray cluster that cannot
+be reached): one line on stderr and exit status 2 (traceback with --debug)."""
 
 
 class TerlGroup(click.Group):
@@ -86,3 +88,4 @@ cli.add_command(render_command)
 cli.add_command(replay)
 cli.add_command(report_command)
 cli.add_command(scenarios)
+cli.add_command(sweep_command)

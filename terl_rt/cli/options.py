@@ -11,7 +11,9 @@ from typing import Any
 import click
 
 import terl_rt
+from terl_rt.evaluation.backends import BACKENDS, RayMissing, open_backend
 from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
+from terl_rt.evaluation.runs import Backend
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import PAPER_SUITE, SCENARIO_LIMITS, Scenario
@@ -82,6 +84,29 @@ def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
         raise ContractError(f"{resolved}: {error}") from error
 
 
+def policy_paths(given: tuple[str, ...]) -> list[str | None]:
+    """The policy files of a repeated --policy, in order: a file as given, a folder's *.onnx
+    files by name; [None] (the default policy) when none is given. BadInput for a folder
+    without one."""
+    if not given:
+        return [None]
+    files: list[str | None] = []
+    for path in given:
+        if Path(path).is_dir():
+            found = sorted(str(file) for file in Path(path).glob("*.onnx") if file.is_file())
+            if not found:
+                raise BadInput(f"--policy {path} is a folder without .onnx files")
+            files += found
+        else:
+            files.append(path)
+    return files
+
+
+def open_policies(paths: tuple[str, ...], threads: int | None = None) -> list[OnnxPolicy]:
+    """Open the policies of a repeated --policy (`policy_paths`), in order."""
+    return [open_policy(file, threads=threads) for file in policy_paths(paths)]
+
+
 def policy_json(info: Mapping[str, Any]) -> dict[str, str]:
     """The policy in --json output: name, sha256 and path of a `policy_info` (or of a log's policy)."""
     return {key: info[key] for key in ("name", "sha256", "path")}
@@ -99,6 +124,25 @@ def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: 
     return [Scenario.preset(name) for name in (names or ("small-15",))]
 
 
+def run_backend(name: str, workers: int | None, address: str | None, threads: int | None) -> Backend:
+    """The backend of --backend, --workers, --address and --threads (`open_backend`), ready
+    to run; a missing Ray or a misplaced --address is BadInput (a cluster that cannot be
+    reached is a BackendError, which the terl-rt group prints as one line too)."""
+    if address is not None and name != "ray":
+        raise BadInput("--address names a Ray cluster; pass --backend ray with it")
+    try:
+        return open_backend(name, workers, address, threads)
+    except RayMissing as error:
+        raise BadInput(str(error)) from None
+
+
+def policy_threads(backend: str, workers: int | None, threads: int | None) -> int | None:
+    """onnxruntime threads of the policy opened in this process: --threads when the
+    episodes run here (local backend, one worker), else onnxruntime's default (the
+    workers open their own)."""
+    return threads if backend == "local" and (workers or 1) == 1 else None
+
+
 def evaluate_with_progress(
     policy: OnnxPolicy,
     scenarios: list[Scenario],
@@ -108,6 +152,7 @@ def evaluate_with_progress(
     workers: int = 1,
     log: EpisodeLogWriter | None = None,
     threads: int | None = None,
+    backend: Backend | None = None,
 ) -> list[ScenarioResult]:
     """`terl_rt.evaluation.episodes.evaluate_policy` on each scenario in turn, with a progress bar per
     scenario on stderr; the arguments are evaluate_policy's."""
@@ -119,7 +164,7 @@ def evaluate_with_progress(
         ) as bar:
             results.append(evaluate_policy(
                 policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
-                log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads,
+                log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads, backend=backend,
             ))
     return results
 
@@ -151,6 +196,11 @@ policy_option = click.option(
     "--policy", "policy_path", type=str, default=None, metavar="PATH",
     help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
 )
+policies_option = click.option(
+    "--policy", "policy_paths", multiple=True, metavar="PATH",
+    help="ONNX policy file, or a folder of them (its *.onnx, by name); repeat for several "
+    f"[default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
+)
 threads_option = click.option(
     "--threads", type=click.IntRange(min=1, max=MAX_THREADS), default=None,
     help="onnxruntime intra-op threads [default: onnxruntime's choice; 1 per worker].",
@@ -164,8 +214,20 @@ max_steps_option = click.option(
     help="Step limit per episode (0.5 s steps) [default: the scenario's, 1000].",
 )
 workers_option = click.option(
-    "--workers", type=click.IntRange(min=1, max=MAX_WORKERS), default=1, show_default=True,
-    help="Processes to spread the episodes over (results are the same as with 1).",
+    "--workers", type=click.IntRange(min=1, max=MAX_WORKERS), default=None,
+    help="Processes to spread the episodes over, or with --backend ray the episodes run at once "
+    "(results are the same as with 1) [default: 1; with --backend ray: every CPU of the cluster].",
+)
+backend_option = click.option(
+    "--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
+    help="Where the episodes run: local (this machine) or ray (Ray tasks: a local Ray instance, "
+    "or the cluster at --address; pip install -e '.[ray]'). Results and logs are the same.",
+)
+address_option = click.option(
+    "--address", type=str, default=None, metavar="ADDR",
+    help="The Ray cluster to join with --backend ray: HOST:PORT of its head (what `ray start --head` "
+    "prints) or auto (RAY_ADDRESS, or the cluster this machine belongs to) [default: start a local "
+    "Ray instance].",
 )
 log_option = click.option(
     "--log", "log_path", type=str, default=None, metavar="FILE.mcap",

@@ -13,15 +13,20 @@ import textwrap
 import click
 
 from terl_rt.cli.options import (
-    DEFAULT_POLICY,
     BadInput,
+    address_option,
+    backend_option,
     episodes_option,
     evaluate_with_progress,
     json_option,
     max_steps_option,
     open_policy,
+    policies_option,
     policy_json,
+    policy_paths,
+    policy_threads,
     resolve_scenarios,
+    run_backend,
     seed_option,
     threads_option,
     workers_option,
@@ -42,40 +47,18 @@ from terl_rt.evaluation.report import (
 )
 from terl_rt.policy.onnx_policy import policy_info
 
-policies_option = click.option(
-    "--policy", "policy_paths", multiple=True, metavar="PATH",
-    help="ONNX policy file, or a folder of .onnx files; repeat to compare several policies, one a "
-    f"method [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
-)
-
-
-def policy_files(given: tuple[str, ...]) -> list[str | None]:
-    """The policy files of --policy: files as given, a folder's .onnx files in name order;
-    [None] (the default policy) when none is given. BadInput for a folder without one."""
-    if not given:
-        return [None]
-    files: list[str | None] = []
-    for path in given:
-        if not Path(path).is_dir():
-            files.append(path)
-            continue
-        found = sorted(str(entry) for entry in Path(path).iterdir() if entry.suffix == ".onnx" and entry.is_file())
-        if not found:
-            raise BadInput(f"--policy {path} is a folder with no .onnx files")
-        files += found
-    return files
-
-
 def command_line(
     policy_paths: tuple[str, ...],
     scenario_names: tuple[str, ...],
     episodes: int,
     seed: int,
     max_steps: int | None,
-    workers: int,
+    workers: int | None,
     threads: int | None,
     out: str,
     force: bool = False,
+    backend: str = "local",
+    address: str | None = None,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -86,8 +69,12 @@ def command_line(
     words += ["--episodes", str(episodes), "--seed", str(seed)]
     if max_steps is not None:
         words += ["--max-steps", str(max_steps)]
-    if workers != 1:
+    if workers is not None:
         words += ["--workers", str(workers)]
+    if backend != "local":
+        words += ["--backend", backend]
+    if address is not None:
+        words += ["--address", address]
     if threads is not None:
         words += ["--threads", str(threads)]
     words += ["--out", out]
@@ -107,6 +94,8 @@ def command_line(
 @seed_option
 @max_steps_option
 @workers_option
+@backend_option
+@address_option
 @threads_option
 @click.option(
     "--out", type=str, default="docs", show_default=True, metavar="DIR",
@@ -114,7 +103,9 @@ def command_line(
 )
 @json_option
 @force_option
-def report_command(policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, as_json, force) -> None:
+def report_command(
+    policy_paths, scenario_names, episodes, seed, max_steps, workers, backend, address, threads, out, as_json, force,
+) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
     scale group beside the paper's TERL numbers, and which of the paper's goals are met)
@@ -135,22 +126,23 @@ def report_command(policy_paths, scenario_names, episodes, seed, max_steps, work
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise BadInput(f"--out {out} is a file; name a folder")
-    files = policy_files(policy_paths)
-    command = command_line(policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force)
+    files = policy_paths(policy_paths)
+    command = command_line(
+        policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,
+    )
     if len(files) > 1:
-        compare_policies(files, scenario_names, episodes, seed, max_steps, workers, threads, out_dir, as_json, force,
-                         command)
+        compare_policies(files, scenario_names, episodes, seed, max_steps, workers, backend, address, threads,
+                         out_dir, as_json, force, command)
         return
     policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
-    policy = open_policy(policy_path, threads=threads if workers == 1 else None)
+    policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy.path)], force)
-    results = evaluate_with_progress(
-        policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
-    )
+    with run_backend(backend, workers, address, threads) as runner:
+        results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
     info = policy_info(policy)
     staging = out_dir / f".results.{os.getpid()}.partial"
     try:
@@ -181,7 +173,9 @@ def compare_policies(
     episodes: int,
     seed: int,
     max_steps: int | None,
-    workers: int,
+    workers: int | None,
+    backend: str,
+    address: str | None,
     threads: int | None,
     out_dir: Path,
     as_json: bool,
@@ -195,19 +189,18 @@ def compare_policies(
     for name in outputs:
         check_output(out_dir / name, "--out", [("--policy", path) for path in files], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
-    policies = [open_policy(path, threads=threads if workers == 1 else None) for path in files]
+    policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
     methods = [(comparison.method_name(policy.name), policy) for policy in policies]
     try:
         comparison.check_methods([(method, str(policy.path)) for method, policy in methods])
     except comparison.ComparisonError as error:
         raise BadInput(f"--policy: {error}") from error
     runs = []
-    for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
-        click.echo(f"{method}: {policy.path}", err=True)
-        results = evaluate_with_progress(
-            policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers, threads=threads,
-        )
-        runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
+    with run_backend(backend, workers, address, threads) as runner:
+        for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
+            click.echo(f"{method}: {policy.path}", err=True)
+            results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
+            runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
     staging = out_dir / f".comparison.{os.getpid()}.partial"
     try:
         written = comparison.write_comparison(runs, staging, command)

@@ -1,14 +1,19 @@
-"""Speed of the simulator and of policies, `terl-rt bench` (timings are reported, never
-asserted in tests)."""
+"""Speed of the simulator, of policies and of the evaluation backends, `terl-rt bench`
+(timings are reported, never asserted in tests)."""
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Sequence
+from contextlib import ExitStack
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from terl_rt.evaluation.backends import open_backend
+from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
@@ -128,3 +133,55 @@ def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: 
         us_per_pursuer=float(1e3 * ms.mean() / rows_mean),
         resets=resets,
     )
+
+
+@dataclass(frozen=True)
+class BackendSpeed:
+    """Time to evaluate a policy on scenarios with one backend, scenario by scenario as
+    `terl-rt eval` and `terl-rt report` do."""
+
+    backend: str
+    workers: int
+    episodes: int
+    """episodes of one run, all scenarios."""
+    start_s: float
+    """s: opening the backend (starting a local Ray instance; nothing for local)."""
+    run_s: float
+    """s: the best of the runs (local worker processes start inside it, per scenario)."""
+    episodes_per_s: float
+    """episodes / run_s."""
+    per_episode: tuple[EpisodeMetrics, ...] = field(repr=False)
+    """every episode's metrics, scenario by scenario (to check that backends agree)."""
+
+    def to_dict(self) -> dict:
+        return {key: value for key, value in asdict(self).items() if key != "per_episode"}
+
+
+def backend_speeds(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, workers: int,
+                   backends: Sequence[str] = ("local", "ray"), repeat: int = 1,
+                   max_steps: int | None = None) -> list[BackendSpeed]:
+    """Open each backend with `workers` workers (a Ray backend starts its own local
+    instance), then evaluate `policy` on each scenario in turn (`episodes` each, episode k
+    with seed + k) on one backend after the other, `repeat` rounds, so that a load that
+    drifts meets them alike; each backend's best round counts. Closing is not timed."""
+    with ExitStack() as stack:
+        opened, start_s = {}, {}
+        for name in backends:
+            start = time.perf_counter()
+            opened[name] = stack.enter_context(open_backend(name, workers))
+            start_s[name] = time.perf_counter() - start
+        best = dict.fromkeys(backends, math.inf)
+        per_episode = {}
+        for _ in range(repeat):
+            for name in backends:
+                start = time.perf_counter()
+                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[name])
+                           for scenario in scenarios]
+                best[name] = min(best[name], time.perf_counter() - start)
+                per_episode[name] = tuple(m for result in results for m in result.per_episode)
+    total = episodes * len(scenarios)
+    return [
+        BackendSpeed(backend=name, workers=workers, episodes=total, start_s=start_s[name], run_s=best[name],
+                     episodes_per_s=total / best[name], per_episode=per_episode[name])
+        for name in backends
+    ]

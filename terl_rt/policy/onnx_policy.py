@@ -253,13 +253,17 @@ class OnnxPolicy:
     """One exported policy file, checked against the contract when loaded.
 
     `threads` sets onnxruntime's intra-op threads (None: its default); execution
-    is sequential and deterministic. Raises FileNotFoundError for a missing file
-    and ContractError for an unreadable file or one that breaks the contract.
+    is sequential and deterministic. `model`: the file's bytes, already read (a Ray
+    worker gets them from the object store, with no shared filesystem); `path` then only
+    names the policy. Raises FileNotFoundError for a missing file and ContractError for
+    an unreadable file or one that breaks the contract.
     """
 
-    def __init__(self, path: str | os.PathLike, threads: int | None = None):
+    def __init__(self, path: str | os.PathLike, threads: int | None = None, model: bytes | None = None):
         self._path = Path(path)
-        model = _read_policy_file(self._path)
+        if model is None:
+            model = _read_policy_file(self._path)
+        self._model = model
         self._sha256 = hashlib.sha256(model).hexdigest()
         self._session = _session_from_bytes(model, self._path, threads)
         self._report = check_contract(self._session)
@@ -295,6 +299,11 @@ class OnnxPolicy:
     def sha256(self) -> str:
         """Hex SHA-256 of the file as loaded."""
         return self._sha256
+
+    @property
+    def model(self) -> bytes:
+        """The ONNX file's bytes as loaded (what `sha256` hashes)."""
+        return self._model
 
     @property
     def report(self) -> ContractReport:
