@@ -84,7 +84,7 @@ def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
         raise ContractError(f"{resolved}: {error}") from error
 
 
-def policy_paths(given: tuple[str, ...]) -> list[str | None]:
+def policy_files(given: tuple[str, ...]) -> list[str | None]:
     """The policy files of a repeated --policy, in order: a file as given, a folder's *.onnx
     files by name; [None] (the default policy) when none is given. BadInput for a folder
     without one."""
@@ -103,8 +103,8 @@ def policy_paths(given: tuple[str, ...]) -> list[str | None]:
 
 
 def open_policies(paths: tuple[str, ...], threads: int | None = None) -> list[OnnxPolicy]:
-    """Open the policies of a repeated --policy (`policy_paths`), in order."""
-    return [open_policy(file, threads=threads) for file in policy_paths(paths)]
+    """Open the policies of a repeated --policy (`policy_files`), in order."""
+    return [open_policy(file, threads=threads) for file in policy_files(paths)]
 
 
 def policy_json(info: Mapping[str, Any]) -> dict[str, str]:

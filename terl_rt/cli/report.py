@@ -23,7 +23,7 @@ from terl_rt.cli.options import (
     open_policy,
     policies_option,
     policy_json,
-    policy_paths,
+    policy_files,
     policy_threads,
     resolve_scenarios,
     run_backend,
@@ -126,7 +126,7 @@ def report_command(
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise BadInput(f"--out {out} is a file; name a folder")
-    files = policy_paths(policy_paths)
+    files = policy_files(policy_paths)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,
     )
