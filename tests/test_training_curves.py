@@ -33,6 +33,19 @@ def test_curves_png_is_written_from_the_metrics_log(tmp_path):
         assert image.format == "PNG" and image.size[0] > 400
 
 
+def test_snapshot_evaluations_are_plotted_with_the_best_starred(tmp_path):
+    evaluation = {"scenario": "small-15", "success_rate": 1.0, "collision_ratio_mean": 0.03}
+    snapshots = [
+        {"kind": "snapshot", "env_step": 2000, "score": -1.0, "best": True,
+         "evaluations": [dict(evaluation, scenario="curriculum-2", success_rate=0.0), evaluation]},
+        {"kind": "snapshot", "env_step": 3000, "score": 0.8, "best": True, "evaluations": [evaluation, evaluation]},
+    ]
+    write_metrics(tmp_path / "metrics.jsonl", RECORDS + snapshots)
+    out = plot_curves(tmp_path / "metrics.jsonl", tmp_path / "curves.png")
+    with Image.open(out) as image:
+        assert image.format == "PNG"
+
+
 def test_a_log_without_finished_episodes_is_refused_by_name(tmp_path):
     write_metrics(tmp_path / "metrics.jsonl", RECORDS[:2])
     with pytest.raises(CurvesError, match="no training record with finished episodes"):

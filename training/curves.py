@@ -28,9 +28,10 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
     """Write a PNG of the training curves of a run.
 
-    Top: success rate of the recent episodes (line) and of the greedy evaluations
-    (points); middle: mean per-pursuer return of the recent episodes; bottom: their
-    collision ratio (where logged). Curriculum stage starts are dashed vertical lines,
+    Top: success rate of the recent episodes (line), of the greedy evaluations and of the
+    snapshot evaluations (points; one series for the current stage, one for the snapshot
+    preset; the best snapshot starred); middle: mean per-pursuer return of the recent
+    episodes; bottom: their collision ratio (where logged) and the snapshots'. Curriculum stage starts are dashed vertical lines,
     resumes dotted ones (the replay buffer starts empty there). x axis: environment steps.
     """
     try:
@@ -44,6 +45,7 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     records = read_metrics(metrics_path)
     train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
     evals = [r for r in records if r.get("kind") == "train" and r.get("eval")]
+    snapshots = [r for r in records if r.get("kind") == "snapshot"]
     stages = [r for r in records if r.get("kind") == "stage"]
     resumes = [r for r in records if r.get("kind") == "resume"]
     if not train:
@@ -57,12 +59,27 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
             [r["env_step"] for r in evals], [r["eval"]["success_rate"] for r in evals],
             "o", label="greedy evaluation",
         )
+    for index in (0, 1):  # a snapshot's evaluations: the current stage, then the snapshot preset
+        shown = [r for r in snapshots if len(r["evaluations"]) > index]
+        if not shown:
+            continue
+        snapshot_steps = [r["env_step"] for r in shown]
+        label = "snapshot: current stage" if index == 0 else f"snapshot: {shown[-1]['evaluations'][1]['scenario']}"
+        top.plot(snapshot_steps, [r["evaluations"][index]["success_rate"] for r in shown], "x",
+                 color=f"C{index + 2}", label=label)
+        bottom.plot(snapshot_steps, [r["evaluations"][index]["collision_ratio_mean"] for r in shown], "x",
+                    color=f"C{index + 2}")
+    best = [r for r in snapshots if r.get("best")]
+    if best:
+        chosen = best[-1]
+        success = sum(e["success_rate"] for e in chosen["evaluations"]) / len(chosen["evaluations"])
+        top.plot([chosen["env_step"]], [success], "*", markersize=12, color="black", label="best snapshot")
     top.set_ylabel("success rate")
     top.set_ylim(-0.05, 1.05)
     top.legend(loc="center left")
     middle.plot(steps, [r["mean_return"] for r in train])
     middle.set_ylabel("return per pursuer")
-    bottom.plot(steps, [r.get("collision_ratio", float("nan")) for r in train])
+    bottom.plot(steps, [r.get("collision_ratio", float("nan")) for r in train], color="C0")
     bottom.set_ylabel("collision ratio")
     bottom.set_xlabel("environment steps")
     for axis in (top, middle, bottom):
