@@ -34,3 +34,9 @@ def test_shipped_policy_acts_on_every_evader_slot_count(path):
         actions = policy.act(observation)
         assert actions.shape == (len(observation.ego),)
         assert np.all((actions >= 0) & (actions < 9))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+def test_shipped_policy_is_named_after_its_model(path):
+    """exported/<model>.onnx: the report and the comparison name a method by terl.model."""
+    assert OnnxPolicy(path, threads=1).name == path.stem

@@ -13,7 +13,7 @@ import numpy as np
 from terl_rt import Scenario, Simulator
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
-from training.checkpoint import read_counters
+from training.checkpoint import load_network, read_counters
 from training.config import Config
 from training.train import METRICS_FILE
 
@@ -49,3 +49,25 @@ def test_train_resume_export_and_act_end_to_end(tmp_path):
     actions = policy.act(simulator.reset())
     assert actions.shape == (11,) and np.all((actions >= 0) & (actions < 9))
     simulator.step(actions)
+
+
+def test_model_card_reads_the_run_it_describes(tmp_path):
+    out = tmp_path / "run"
+    config = smoke_config(model="iqn", layers=0, heads=0, snapshot_frequency=160, snapshot_episodes=1)
+    config_file = tmp_path / "iqn.json"
+    config.to_file(config_file)
+    assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"]) == 0
+    card_path = tmp_path / "iqn.md"
+    assert main(["card", str(out), "--onnx", "exported/iqn.onnx", "--config", str(config_file),
+                 "-o", str(card_path)]) == 0
+    card = card_path.read_text()
+    counters = read_counters(out)
+    model = load_network(out)[0]
+    assert card.startswith("# exported/iqn.onnx — IQN, 0 k environment steps")
+    assert f"**{sum(p.numel() for p in model.parameters()):,} parameters**" in card
+    assert f"**320 environment steps, {counters.updates:,} gradient updates" in card
+    snapshots = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]
+    snapshots = [r for r in snapshots if r["kind"] == "snapshot"]
+    assert len(snapshots) == 2
+    assert sum(line.startswith("| 0 k |") for line in card.splitlines()) == 2
+    assert f"at {counters.best_step:,} steps" in card

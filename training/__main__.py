@@ -1,4 +1,4 @@
-"""Command line of the training package: `python -m training {train,export,plot,bench}` (click,
+"""Command line of the training package: `python -m training {train,export,plot,card,bench}` (click,
 like `terl-rt`).
 
 A thin layer: each subcommand resolves its options into a `Config` (or paths), sets
@@ -143,6 +143,22 @@ def plot_command(run: Path, output: Path, title: str) -> None:
 
     path = plot_curves(run / METRICS_FILE, output, title=title)
     click.echo(f"{path}: training curves of {run}")
+
+
+@cli.command("card")
+@click.argument("run", type=click.Path(path_type=Path), metavar="RUN_DIR")
+@click.option("--onnx", required=True, metavar="FILE.onnx", help="The shipped policy the card is for, as it names it.")
+@click.option("--config", "config_file", required=True, metavar="FILE", help="The config the run was started from.")
+@click.option("--machine", default="one core of the 2-core CPU machine (one torch thread)", show_default=True,
+              help="Where the run trained, in words.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="CARD.md")
+def card_command(run: Path, onnx: str, config_file: str, machine: str, output: Path) -> None:
+    """Write the model card of the policy exported from RUN_DIR's best snapshot: body,
+    size, training cost and every snapshot evaluation."""
+    from training.card import model_card
+
+    output.write_text(model_card(run, onnx, config_file, machine))
+    click.echo(f"{output}: model card of {onnx}")
 
 
 @cli.command("bench")

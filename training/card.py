@@ -1,0 +1,87 @@
+"""Model cards of trained runs: `python -m training card RUN_DIR --onnx FILE -o CARD.md`.
+
+A card says what a shipped policy is (body, size), how it was trained (config, steps,
+updates, episodes, wall clock, machine), which snapshot was shipped and why (every
+snapshot evaluation of the run), read from the run's checkpoint and metrics.jsonl, so
+the cards of runs trained the same way read the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from training.checkpoint import load_network
+from training.curves import read_metrics
+
+PAPER_NAMES = {
+    "terl": "TERL", "iqn": "IQN", "dqn": "DQN", "mean": "MEAN",
+    "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
+}
+"""The paper's name of each model (policy.md sections 1 and 4)."""
+
+
+def _snapshot_row(record: dict) -> str:
+    cells = [
+        f"{e['success_rate']:.2f} / {e['travel_time_s_mean']:.1f} s / {e['collision_ratio_mean']:.3f}"
+        for e in record["evaluations"]
+    ]
+    cells[0] = f"{record['evaluations'][0]['scenario']}: {cells[0]}"  # the stage changes along the run
+    chosen = " (best so far)" if record.get("best") else ""
+    return f"| {record['env_step'] // 1000} k | {record['score']:.3f}{chosen} | " + " | ".join(cells) + " |"
+
+
+def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str) -> str:
+    """The markdown card of the policy `onnx` exported from run folder `run`'s best snapshot.
+
+    Args:
+        run: the run folder (checkpoint, metrics.jsonl, best/).
+        onnx: the shipped ONNX file, as the card names it.
+        config_file: the config the run was started from, as the card names it.
+        machine: where it trained, in words.
+    """
+    run = Path(run)
+    best = run / "best"
+    model, config, best_counters = load_network(best if best.is_dir() else run)
+    _, _, counters = load_network(run)
+    parameters = sum(p.numel() for p in model.parameters())
+    body = " ".join(type(model).__doc__.split("\n\n")[0].split())
+    snapshots = [r for r in read_metrics(run / "metrics.jsonl") if r.get("kind") == "snapshot"]
+    name = PAPER_NAMES.get(config.model, config.model)
+    size = f"H = {config.hidden}" + (f", L = {config.layers}, h = {config.heads}" if config.layers else "")
+    lines = [
+        f"# {onnx} — {name}, {counters.env_step // 1000} k environment steps",
+        "",
+        f"The `{config.model}` network of the paper's comparison (policy.md sections 1 and 4), trained with",
+        "the recipe, budget, curriculum, seed and snapshot rule of the shipped `exported/terl.onnx`",
+        "(its card: `exported/terl.md`); only the network differs.",
+        "",
+        "## Model",
+        f"- {body}",
+        f"- {size}: **{parameters:,} parameters**.",
+        "",
+        "## Training",
+        f"- Config: `{config_file}` (reward `{config.reward}`, learning rate {config.learning_rate:g}, "
+        f"dropout {config.dropout:g}, batch {config.batch_size}, {config.num_envs} worlds, seed {config.seed}); "
+        f"command `python -m training train --config {config_file} --out runs/{Path(onnx).stem} --threads 1`.",
+        f"- **{counters.env_step:,} environment steps, {counters.updates:,} gradient updates, "
+        f"{counters.episodes:,} episodes, {counters.wall_seconds:,.0f} s** ({counters.wall_seconds / 3600:.1f} h) "
+        f"on {machine}.",
+        f"- Shipped: the best snapshot, at {best_counters.env_step:,} steps "
+        f"(score {counters.best_score:.3f}: mean over its evaluations of success - collision ratio - "
+        "time / limit), exported with `python -m training export RUN/best`.",
+        "",
+        "## Snapshot evaluations",
+        "",
+        "Greedy, on fixed seeds, every snapshot of the run: success / travel time / collision ratio of",
+        f"{config.snapshot_episodes} episodes of the current curriculum stage and of {config.snapshot_preset}.",
+        "",
+        "| step | score | current stage | " + config.snapshot_preset + " |",
+        "|---:|---:|---|---|",
+        *(_snapshot_row(record) for record in snapshots),
+        "",
+        "## Evaluation on the paper's presets",
+        "",
+        "Beside TERL and the other baselines in `docs/comparison.md` (`terl-rt report --policy exported`).",
+        "",
+    ]
+    return "\n".join(lines)
