@@ -63,7 +63,7 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     card = card_path.read_text()
     counters = read_counters(out)
     model = load_network(out)[0]
-    assert card.startswith("# exported/iqn.onnx — IQN, 0 k environment steps")
+    assert card.startswith("# exported/iqn.onnx — IQN, a run of 0 k environment steps")
     assert f"**{sum(p.numel() for p in model.parameters()):,} parameters**" in card
     assert f"**320 environment steps, {counters.updates:,} gradient updates" in card
     snapshots = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]

@@ -30,6 +30,14 @@ def _snapshot_row(record: dict) -> str:
     return f"| {record['env_step'] // 1000} k | {record['score']:.3f}{chosen} | " + " | ".join(cells) + " |"
 
 
+def never_encircled(snapshots: list[dict]) -> list[str]:
+    """A line saying so when no snapshot evaluation of the run succeeded once (else none)."""
+    if any(e["success_rate"] > 0 for r in snapshots for e in r["evaluations"]):
+        return []
+    return ["- **No snapshot of this run encircled** (success 0 in every evaluation below): the rule "
+            "picked the least bad score, which says little about the network."]
+
+
 def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str) -> str:
     """The markdown card of the policy `onnx` exported from run folder `run`'s best snapshot.
 
@@ -44,12 +52,12 @@ def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str
     model, config, best_counters = load_network(best if best.is_dir() else run)
     _, _, counters = load_network(run)
     parameters = sum(p.numel() for p in model.parameters())
-    body = " ".join(type(model).__doc__.split("\n\n")[0].split())
+    body = " ".join(type(model).__doc__.split("\n\n")[0].split(";")[0].split()).rstrip(".") + "."
     snapshots = [r for r in read_metrics(run / "metrics.jsonl") if r.get("kind") == "snapshot"]
     name = PAPER_NAMES.get(config.model, config.model)
     size = f"H = {config.hidden}" + (f", L = {config.layers}, h = {config.heads}" if config.layers else "")
     lines = [
-        f"# {onnx} — {name}, {counters.env_step // 1000} k environment steps",
+        f"# {onnx} — {name}, a run of {counters.env_step // 1000} k environment steps",
         "",
         f"The `{config.model}` network of the paper's comparison (policy.md sections 1 and 4), trained with",
         "the recipe, budget, curriculum, seed and snapshot rule of the shipped `exported/terl.onnx`",
@@ -68,7 +76,9 @@ def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str
         f"on {machine}.",
         f"- Shipped: the best snapshot, at {best_counters.env_step:,} steps "
         f"(score {counters.best_score:.3f}: mean over its evaluations of success - collision ratio - "
-        "time / limit), exported with `python -m training export RUN/best`.",
+        f"time / limit), exported with `python -m training export {run}/best`; the run's checkpoint "
+        f"(resumable) and metrics are in `{run}/`.",
+        *never_encircled(snapshots),
         "",
         "## Snapshot evaluations",
         "",
