@@ -14,12 +14,13 @@ from pathlib import Path
 import click
 import torch
 
+from training.card import CardError
 from training.checkpoint import STATE_FILE, export_checkpoint, read_config
 from training.config import Config, ConfigError, packaged_configs
 from training.curves import CurvesError
 from training.export import read_metadata
 
-USER_ERRORS = (ConfigError, CurvesError, FileNotFoundError, IsADirectoryError)
+USER_ERRORS = (ConfigError, CurvesError, CardError, FileNotFoundError, IsADirectoryError)
 """Exceptions that mean bad input rather than a bug."""
 
 OVERRIDES = ("total_steps", "curriculum_steps", "learning_rate", "learning_starts", "num_envs", "threads", "seed",
@@ -151,13 +152,17 @@ def plot_command(run: Path, output: Path, title: str) -> None:
 @click.option("--config", "config_file", required=True, metavar="FILE", help="The config the run was started from.")
 @click.option("--machine", default="one core of the 2-core CPU machine (one torch thread)", show_default=True,
               help="Where the run trained, in words.")
+@click.option("--comparison", type=click.Path(path_type=Path), metavar="FILE.json",
+              help="A comparison.json of `terl-rt report` (several policies) holding this model: its "
+                   "per-group evaluation goes into the card.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="CARD.md")
-def card_command(run: Path, onnx: str, config_file: str, machine: str, output: Path) -> None:
+def card_command(run: Path, onnx: str, config_file: str, machine: str, comparison: Path | None, output: Path) -> None:
     """Write the model card of the policy exported from RUN_DIR's best snapshot: body,
-    size, training cost and every snapshot evaluation."""
+    size, training cost, every snapshot evaluation and (with --comparison) its evaluation
+    on the paper's presets."""
     from training.card import model_card
 
-    output.write_text(model_card(run, onnx, config_file, machine))
+    output.write_text(model_card(run, onnx, config_file, machine, comparison))
     click.echo(f"{output}: model card of {onnx}")
 
 

@@ -8,6 +8,7 @@ the cards of runs trained the same way read the same way.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from training.checkpoint import load_network
@@ -18,6 +19,10 @@ PAPER_NAMES = {
     "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
 }
 """The paper's name of each model (policy.md sections 1 and 4)."""
+
+
+class CardError(ValueError):
+    """A comparison file the card cannot use; the message names it."""
 
 
 def _snapshot_row(record: dict) -> str:
@@ -38,7 +43,39 @@ def never_encircled(snapshots: list[dict]) -> list[str]:
             "picked the least bad score, which says little about the network."]
 
 
-def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str) -> str:
+def evaluation_lines(comparison: str | Path, model: str) -> list[str]:
+    """The per-group table of `model` in a comparison.json written by `terl-rt report`
+    (several policies), with its 95 % intervals; CardError when it is not one or lacks the model."""
+    try:
+        data = json.loads(Path(comparison).read_text())
+        runs = [run for run in data["methods"] if run["policy"]["metadata"].get("terl.model") == model]
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
+        raise CardError(f"{comparison}: not a comparison.json of terl-rt report ({error!r})") from None
+    if not runs:
+        raise CardError(f"{comparison}: no policy of model '{model}' in this comparison")
+    run = runs[0]
+    lines = [
+        f"`{data['command']}` ({data['date'][:16].replace('T', ' ')} UTC); full tables and the paper's numbers in `docs/comparison.md`.",
+        "Group means with 95 % intervals (bootstrap over the episodes within each preset):",
+        "",
+        "| group | presets | success | travel time (s) | collision ratio |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for group in run["groups"]:
+        interval = group["ci95"]
+        lines.append(
+            f"| {group['group']} | {', '.join(group['presets'])} "
+            f"| {group['success_rate']:.2f} [{interval['success_rate'][0]:.2f}, {interval['success_rate'][1]:.2f}] "
+            f"| {group['travel_time_s_mean']:.1f} [{interval['travel_time_s'][0]:.1f}, {interval['travel_time_s'][1]:.1f}] "
+            f"| {group['collision_ratio_mean']:.3f} [{interval['collision_ratio'][0]:.3f}, "
+            f"{interval['collision_ratio'][1]:.3f}] |"
+        )
+    return lines
+
+
+def model_card(
+    run: str | Path, onnx: str | Path, config_file: str, machine: str, comparison: str | Path | None = None,
+) -> str:
     """The markdown card of the policy `onnx` exported from run folder `run`'s best snapshot.
 
     Args:
@@ -46,6 +83,8 @@ def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str
         onnx: the shipped ONNX file, as the card names it.
         config_file: the config the run was started from, as the card names it.
         machine: where it trained, in words.
+        comparison: a comparison.json of `terl-rt report` holding this model (its evaluation
+            section); None: the card points to docs/comparison.md.
     """
     run = Path(run)
     best = run / "best"
@@ -91,7 +130,8 @@ def model_card(run: str | Path, onnx: str | Path, config_file: str, machine: str
         "",
         "## Evaluation on the paper's presets",
         "",
-        "Beside TERL and the other baselines in `docs/comparison.md` (`terl-rt report --policy exported`).",
+        *(evaluation_lines(comparison, config.model) if comparison is not None else
+          ["Beside TERL and the other baselines in `docs/comparison.md` (`terl-rt report --policy exported`)."]),
         "",
     ]
     return "\n".join(lines)
