@@ -257,6 +257,27 @@ def test_network_overfits_a_tiny_fixed_batch():
     assert np.mean(losses[-10:]) < 0.2 * np.mean(losses[:10])
 
 
+def test_a_resume_without_its_buffer_refills_it_to_what_it_held_before_updating(tmp_path):
+    # 3 pursuers in each of 8 worlds: a 200-step run leaves about 600 transitions in a
+    # buffer of 10,000; without replay.npz the resume refills that many (about 200 more
+    # steps) before its first update, however small learning_starts is.
+    config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
+                         learning_starts=80, eval_frequency=0, save_replay=False)
+    out = tmp_path / "run"
+    before = train(config, out, show_progress=False)
+    assert 0 < before.replay_transitions <= 600 and read_counters(out).replay_transitions == before.replay_transitions
+
+    short = train(config.replace(total_steps=280, learning_starts=8), tmp_path / "short", resume=out, show_progress=False)
+    assert short.updates == before.updates  # 80 steps refill less than it held: no update yet
+    note = next(json.loads(line)["note"] for line in (tmp_path / "short" / METRICS_FILE).read_text().splitlines()
+                if json.loads(line)["kind"] == "resume")
+    assert f"refilled to the {before.replay_transitions:,} transitions it held" in note
+
+    long = train(config.replace(total_steps=600, learning_starts=8), tmp_path / "long", resume=out, show_progress=False)
+    assert long.updates > before.updates  # refilled after about 200 steps, updating again after
+    assert long.updates < before.updates + (600 - 200 - before.replay_transitions // 3) // 4 + 1
+
+
 # ---------------------------------------------------------------- end to end
 @pytest.mark.slow
 def test_train_checkpoint_resume_export_and_act(tmp_path):
@@ -316,7 +337,7 @@ def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp
     written = json.loads((tmp_path / "run" / "config.json").read_text())
     assert (written["learning_rate"], written["learning_starts"]) == (5e-5, 200)
     records = [json.loads(line) for line in (tmp_path / "run" / METRICS_FILE).read_text().splitlines()]
-    assert "refilled for 200 environment steps" in next(r["note"] for r in records if r["kind"] == "resume")
+    assert "for at least 200 environment steps" in next(r["note"] for r in records if r["kind"] == "resume")
 
 
 @pytest.mark.slow

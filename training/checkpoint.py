@@ -56,6 +56,9 @@ class Counters:
     """score of the best snapshot so far (training.train.snapshot_score), None before the first."""
     best_step: int | None = None
     """environment step of that snapshot."""
+    replay_transitions: int | None = None
+    """transitions the replay buffer held at this checkpoint: what a resume without the saved
+    buffer refills before updating again (None in checkpoints from before it was recorded)."""
 
 
 def network_from_config(config: Config) -> QNetwork:

@@ -392,8 +392,11 @@ def train(
     buffer (replay.npz, `config.save_replay`) and the best snapshot (best/,
     `config.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
     counters, RNG states and, when it was saved there, the replay buffer come from that
-    checkpoint; without a saved buffer, it is refilled for `learning_starts`
-    environment steps before updates resume (logged). The caller sets torch's thread count.
+    checkpoint; without a saved buffer, it is refilled to the transitions it held then
+    (`Counters.replay_transitions`; its capacity for older checkpoints), and for at least
+    `learning_starts` environment steps, before updates resume (logged): updating on a
+    buffer a tenth as full as before made the policy collapse within 20 k steps.
+    The caller sets torch's thread count.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -415,6 +418,8 @@ def train(
     scenario = training_scenario(config, counters.env_step)
     buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
     learning_starts = config.learning_starts
+    refill_to = 0
+    """transitions the buffer must hold again before updates resume (0: none to wait for)."""
     if resume is not None:
         saved = Path(resume) / REPLAY_FILE
         if saved.is_file():
@@ -422,9 +427,11 @@ def train(
             note = f"resumed from {resume} at environment step {counters.env_step} with its replay buffer ({len(buffer):,} transitions)"
         else:
             learning_starts = counters.env_step + config.learning_starts
+            refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
             note = (
                 f"resumed from {resume} at environment step {counters.env_step}; no saved replay buffer, "
-                f"it is refilled for {config.learning_starts} environment steps before updates resume"
+                f"it is refilled to the {refill_to:,} transitions it held, and for at least "
+                f"{config.learning_starts} environment steps, before updates resume"
             )
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
         progress.note(note)
@@ -481,7 +488,9 @@ def train(
         counters.env_step += num_envs
 
         # --- learn: the updates due in this batch step, then the hard target copy
-        if counters.env_step >= learning_starts and len(buffer) >= config.batch_size:
+        if refill_to and len(buffer) >= refill_to:
+            learning_starts, refill_to = max(learning_starts, counters.env_step), 0
+        if not refill_to and counters.env_step >= learning_starts and len(buffer) >= config.batch_size:
             # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
             due = crossings(max(previous_step, learning_starts), counters.env_step, config.train_frequency)
             for _ in range(due):
@@ -507,6 +516,7 @@ def train(
             write_record(log_path, {**record, "env_step": counters.env_step})
             if better:
                 counters.best_score, counters.best_step = record["score"], counters.env_step
+                counters.replay_transitions = len(buffer)
                 save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
                 progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
         if evaluation or finished or crossings(previous_step, counters.env_step, config.log_frequency):
@@ -545,6 +555,7 @@ def train(
 
         # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
         if finished or crossings(previous_step, counters.env_step, config.checkpoint_frequency):
+            counters.replay_transitions = len(buffer)
             if config.save_replay:
                 buffer.save(out_dir / REPLAY_FILE)
             save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
