@@ -1,8 +1,8 @@
 """Episodes as Ray tasks on a local Ray instance of 2 CPUs (issue 17): the same results and
 logs as a local run, a worker killed mid-run, interrupted and killed runs.
 
-They need Ray (`pip install -e '.[ray]'`) and are marked `ray`: `python -m pytest -m ray`
-runs them alone. Without Ray they are skipped.
+They need Ray (the `ray` extra; the `dev` extra installs it too, so they run in CI) and are
+marked `ray`: `python -m pytest -m ray` runs them alone. Without Ray they are skipped.
 """
 
 from __future__ import annotations
