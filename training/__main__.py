@@ -44,7 +44,8 @@ def config_options(command):
                      help="Adam learning rate; with --resume it replaces the checkpoint's."),
         click.option("--learning-starts", type=int, metavar="K",
                      help="Environment steps before the first update (config default 3000); with --resume and no "
-                          "saved replay buffer, the steps that refill it first."),
+                          "saved replay buffer, the fewest steps that refill it first (it refills to the "
+                          "transitions it held)."),
         click.option("--num-envs", type=int, metavar="B", help="Environments stepped together (default 8)."),
         click.option("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)."),
         click.option("--seed", type=int, metavar="S", help="Random seed (default 1)."),

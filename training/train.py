@@ -428,9 +428,11 @@ def train(
         else:
             learning_starts = counters.env_step + config.learning_starts
             refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
+            held = (f"the {refill_to:,} transitions it held" if counters.replay_transitions
+                    else f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)")
             note = (
                 f"resumed from {resume} at environment step {counters.env_step}; no saved replay buffer, "
-                f"it is refilled to the {refill_to:,} transitions it held, and for at least "
+                f"it is refilled to {held}, and for at least "
                 f"{config.learning_starts} environment steps, before updates resume"
             )
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
