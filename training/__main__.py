@@ -16,7 +16,7 @@ import torch
 
 from training.card import CardError
 from training.checkpoint import STATE_FILE, export_checkpoint, read_config
-from training.config import Config, ConfigError, packaged_configs
+from training.config import NETWORK_FIELDS, Config, ConfigError, changed_fields, packaged_configs
 from training.curves import CurvesError
 from training.export import read_metadata
 
@@ -92,16 +92,34 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), metavar="DIR",
               help="Output folder: metrics.jsonl, the checkpoint, replay.npz, best/ (default: the --resume folder).")
 @click.option("--resume", type=click.Path(path_type=Path), metavar="DIR",
-              help="Continue the checkpoint in DIR with its config (and its replay buffer when saved there).")
+              help="Continue the checkpoint in DIR with its config (and its replay buffer when saved there); "
+                   "with --config, fine-tune it under that config instead (same network; e.g. another "
+                   "scenario, reward or learning rate).")
 @click.option("--quiet", is_flag=True, help="No progress line on stderr.")
 def train_command(out: Path | None, resume: Path | None, quiet: bool, **options) -> None:
-    """Train a pursuer Q-network (IQN/DQN) on the curriculum."""
+    """Train a pursuer Q-network (IQN/DQN) on the curriculum.
+
+    \b
+    New run:   --model NAME | --config FILE, and --out DIR
+    Continue:  --resume DIR (its config; the overrides below replace fields)
+    Fine-tune: --resume DIR --config FILE --out NEW_DIR (the checkpoint's weights, optimizer
+               and counters under FILE's settings, e.g. a larger team as the scenario)
+    """
     from training.train import train
 
     if resume is not None:
-        if options["config_file"] is not None:
-            raise ConfigError("--resume uses the checkpoint's config; drop --config")
-        config = apply_overrides(read_config(resume), options)
+        saved = read_config(resume)
+        if options["config_file"] is not None:  # a fine-tune: the checkpoint's weights under a new config
+            config = resolve_config(options)
+            changed = changed_fields(saved, config, NETWORK_FIELDS)
+            if changed:
+                raise ConfigError(
+                    f"{options['config_file']} describes another network than {resume} ("
+                    + ", ".join(f"{name} {getattr(config, name)} against {getattr(saved, name)}" for name in changed)
+                    + "): a checkpoint continues only with the same model, hidden, layers and heads"
+                )
+        else:
+            config = apply_overrides(saved, options)
         if options["model"] is not None and options["model"] != config.model:
             raise ConfigError(f"--model {options['model']} disagrees with the checkpoint (model '{config.model}')")
         out = out if out is not None else resume

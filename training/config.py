@@ -203,6 +203,18 @@ class Config:
         return dataclasses.replace(self, **changes)
 
 
+NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
+"""Fields that fix the network's weights: a checkpoint continues only under the same values."""
+
+SNAPSHOT_FIELDS = ("curriculum", "scenario", "snapshot_preset", "snapshot_episodes", "eval_seed", "eval_max_steps")
+"""Fields that fix what a snapshot is evaluated on: snapshot scores compare only under the same values."""
+
+
+def changed_fields(before: Config, after: Config, names: tuple[str, ...]) -> list[str]:
+    """The fields among `names` whose values differ between two configs, in the order given."""
+    return [name for name in names if getattr(before, name) != getattr(after, name)]
+
+
 def field_names() -> tuple[str, ...]:
     """Config field names, in declaration order."""
     return tuple(f.name for f in dataclasses.fields(Config))

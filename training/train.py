@@ -55,8 +55,8 @@ from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
 from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
-from training.checkpoint import Counters, load_checkpoint, network_from_config, save_checkpoint
-from training.config import CURRICULUM_STAGES, Config
+from training.checkpoint import Counters, load_checkpoint, network_from_config, read_config, save_checkpoint
+from training.config import CURRICULUM_STAGES, SNAPSHOT_FIELDS, Config, changed_fields
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.networks import QNetwork
@@ -414,6 +414,12 @@ def train(
         counters = load_checkpoint(resume, model, target, optimizer, rng)
         for group in optimizer.param_groups:  # the config rules: the saved state carries the old rate
             group["lr"] = config.learning_rate
+        # A fine-tune (a new config on the checkpoint's weights) that evaluates snapshots on other
+        # scenarios starts its own best: scores of different evaluations do not compare.
+        saved_config = read_config(resume)
+        evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
+        if evaluation_changes and counters.best_score is not None:
+            counters.best_score, counters.best_step = None, None
     progress = Progress(show_progress, counters.env_step)
     scenario = training_scenario(config, counters.env_step)
     buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
@@ -422,8 +428,15 @@ def train(
     """transitions the buffer must hold again before updates resume (0: none to wait for)."""
     if resume is not None:
         saved = Path(resume) / REPLAY_FILE
-        if saved.is_file():
-            buffer.load(saved)
+        unused = "no saved replay buffer"
+        if saved.is_file() and saved_config.reward != config.reward:  # a fine-tune on another reward
+            unused = f"its saved replay buffer holds '{saved_config.reward}' rewards, not '{config.reward}'"
+        elif saved.is_file():
+            try:
+                buffer.load(saved)
+            except ValueError as error:  # a fine-tune on a scenario with other evader slots
+                unused = f"its saved replay buffer does not fit ({error})"
+        if len(buffer):
             note = f"resumed from {resume} at environment step {counters.env_step} with its replay buffer ({len(buffer):,} transitions)"
         else:
             learning_starts = counters.env_step + config.learning_starts
@@ -431,10 +444,12 @@ def train(
             held = (f"the {refill_to:,} transitions it held" if counters.replay_transitions
                     else f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)")
             note = (
-                f"resumed from {resume} at environment step {counters.env_step}; no saved replay buffer, "
+                f"resumed from {resume} at environment step {counters.env_step}; {unused}, "
                 f"it is refilled to {held}, and for at least "
                 f"{config.learning_starts} environment steps, before updates resume"
             )
+        if evaluation_changes:
+            note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
         progress.note(note)
 

@@ -12,6 +12,7 @@ import torch
 from training.buffer import NStepWindow, ReplayBuffer
 from training.config import Config
 from training.losses import quantile_td_target, td_target
+from training.checkpoint import read_counters
 from training.train import BEST_FOLDER, METRICS_FILE, REPLAY_FILE, snapshot_score, subsample_per_group, train
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
@@ -173,3 +174,48 @@ def test_dropout_of_the_transformer_layers_comes_from_the_config():
         model = network_from_config(Config(hidden=16, layers=1, heads=2, dropout=p))
         rates = {m.p for m in model.modules() if isinstance(m, torch.nn.Dropout)}
         assert rates == {p}
+
+
+# ---------------------------------------------------------------- fine-tune: a new config on a checkpoint
+def fine_tune(run, out, config: Config, tmp_path) -> int:
+    """`python -m training train --resume RUN --config FILE --out OUT`; returns the exit status."""
+    from training.__main__ import main
+
+    config_file = tmp_path / f"{out.name}.json"
+    config.to_file(config_file)
+    return main(["train", "--resume", str(run), "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"])
+
+
+def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "medium"
+    before = train(tiny(snapshot_frequency=160), run, show_progress=False)
+    assert before.best_score is not None
+    medium = tiny(curriculum=False, scenario="medium-48", num_envs=2, total_steps=640, snapshot_frequency=80)
+    assert fine_tune(run, out, medium, tmp_path) == 0
+
+    after = read_counters(out)
+    assert after.env_step == 640 and after.stages[-1] == "medium-48"
+    assert after.best_step in (560, 640)  # its own snapshots, not the curriculum's best
+    assert json.loads((out / "config.json").read_text())["scenario"] == "medium-48"
+    note = next(r["note"] for r in records(out) if r["kind"] == "resume")
+    assert "its saved replay buffer does not fit" in note and "8 evader slots, this buffer has 14" in note
+    assert "snapshots are evaluated anew (curriculum, scenario changed)" in note
+    snapshots = [r for r in records(out) if r["kind"] == "snapshot"]
+    assert [e["scenario"] for e in snapshots[-1]["evaluations"]] == ["medium-48", "small-11"]
+
+
+def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "published"
+    train(tiny(), run, show_progress=False)
+    assert (run / REPLAY_FILE).is_file()
+    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560), tmp_path) == 0
+    note = next(r["note"] for r in records(out) if r["kind"] == "resume")
+    assert "its saved replay buffer holds 'paper' rewards, not 'published'" in note
+    assert "evaluated anew" not in note  # same scenarios: the best carries on
+
+
+def test_fine_tune_refuses_another_network(tmp_path, capsys):
+    run = tmp_path / "run"
+    train(tiny(total_steps=80, learning_starts=0), run, show_progress=False)
+    assert fine_tune(run, tmp_path / "wider", tiny(hidden=32, total_steps=160), tmp_path) == 2
+    assert "hidden 32 against 16" in capsys.readouterr().err
