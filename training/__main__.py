@@ -116,7 +116,7 @@ def train_command(out: Path | None, resume: Path | None, quiet: bool, **options)
                 raise ConfigError(
                     f"{options['config_file']} describes another network than {resume} ("
                     + ", ".join(f"{name} {getattr(config, name)} against {getattr(saved, name)}" for name in changed)
-                    + "): a checkpoint continues only with the same model, hidden, layers and heads"
+                    + f"): a checkpoint continues only with the same {', '.join(NETWORK_FIELDS)}"
                 )
         else:
             config = apply_overrides(saved, options)

@@ -418,7 +418,7 @@ def train(
         # scenarios starts its own best: scores of different evaluations do not compare.
         saved_config = read_config(resume)
         evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
-        if evaluation_changes and counters.best_score is not None:
+        if evaluation_changes:
             counters.best_score, counters.best_step = None, None
     progress = Progress(show_progress, counters.env_step)
     scenario = training_scenario(config, counters.env_step)
