@@ -8,6 +8,7 @@ mistakes (bad config, missing file) print one `error:` line and exit with status
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -163,6 +164,29 @@ def plot_command(run: Path, output: Path, title: str) -> None:
 
     path = plot_curves(run / METRICS_FILE, output, title=title)
     click.echo(f"{path}: training curves of {run}")
+
+
+@cli.command("snapshots")
+@click.argument("run", type=click.Path(path_type=Path, exists=True, file_okay=False), metavar="RUN_DIR")
+@click.option("--json", "as_json", is_flag=True, help="Print the snapshot records as a JSON list instead.")
+def snapshots_command(run: Path, as_json: bool) -> None:
+    """Print every snapshot evaluation of a run so far (it may still be training): step, score,
+    and success / travel time / collision ratio on the current stage and the snapshot preset."""
+    from training.card import snapshot_table
+    from training.curves import read_metrics
+    from training.train import METRICS_FILE
+
+    if not (run / METRICS_FILE).is_file():
+        raise click.ClickException(f"{run}: no {METRICS_FILE} (not a training run folder)")
+    snapshots = [r for r in read_metrics(run / METRICS_FILE) if r.get("kind") == "snapshot"]
+    if as_json:
+        click.echo(json.dumps(snapshots))
+        return
+    if not snapshots:
+        click.echo(f"{run}: no snapshot yet")
+        return
+    preset = snapshots[-1]["evaluations"][-1]["scenario"]
+    click.echo("\n".join(snapshot_table(snapshots, preset)))
 
 
 @cli.command("card")

@@ -25,6 +25,15 @@ class CardError(ValueError):
     """A comparison file the card cannot use; the message names it."""
 
 
+def snapshot_table(snapshots: list[dict], preset: str) -> list[str]:
+    """Markdown lines of a table of a run's snapshot records, one row each, in order."""
+    return [
+        "| step | score | current stage | " + preset + " |",
+        "|---:|---:|---|---|",
+        *(_snapshot_row(record) for record in snapshots),
+    ]
+
+
 def _snapshot_row(record: dict) -> str:
     cells = [
         f"{e['success_rate']:.2f} / {e['travel_time_s_mean']:.1f} s / {e['collision_ratio_mean']:.3f}"
@@ -124,9 +133,7 @@ def model_card(
         "Greedy, on fixed seeds, every snapshot of the run: success / travel time / collision ratio of",
         f"{config.snapshot_episodes} episodes of the current curriculum stage and of {config.snapshot_preset}.",
         "",
-        "| step | score | current stage | " + config.snapshot_preset + " |",
-        "|---:|---:|---|---|",
-        *(_snapshot_row(record) for record in snapshots),
+        *snapshot_table(snapshots, config.snapshot_preset),
         "",
         "## Evaluation on the paper's presets",
         "",

@@ -108,6 +108,14 @@ class Config:
     n_step: int = 1
     """n: rewards summed over up to n steps before bootstrapping with gamma^n (fewer at the
     end of a pursuer's episode)."""
+    potential_shaping: float = 0.0
+    """k: 0 trains on the reward as the variant pays it. k > 0 pays its guidance term and the
+    positive part of its cooperation term as a potential difference instead,
+    gamma * Phi(s') - Phi(s) with Phi = k * (guidance + max(cooperation, 0)) of the state a
+    step ends in (Phi(s') = 0 after a terminal transition, Phi = 0 before an episode's first
+    step): holding a ring open then earns nothing a step, the approach still pays, and the
+    best policy of the other terms (time, collision, emergency, boundary, crowding,
+    completion) is unchanged (potential-based shaping, Ng, Harada and Russell 1999)."""
     store_pursuers: int = 0
     """pursuer transitions of each world step that enter the replay buffer, a random subset
     of the pursuers that acted (0: all of them, the published setting)."""
@@ -206,6 +214,10 @@ class Config:
 NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
 """Fields that fix the network's weights: a checkpoint continues only under the same values."""
 
+RETURN_FIELDS = ("reward", "potential_shaping", "gamma", "n_step", "success_ends_transitions")
+"""Fields that fix what a stored transition holds (its return, discount and done): a saved
+replay buffer is reused only under the same values."""
+
 SNAPSHOT_FIELDS = ("curriculum", "scenario", "snapshot_preset", "snapshot_episodes", "eval_seed", "eval_max_steps")
 """Fields that fix what a snapshot is evaluated on: snapshot scores compare only under the same values."""
 
@@ -294,6 +306,8 @@ def _validate(config: Config) -> None:
     for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout"):
         if not 0.0 <= getattr(config, name) <= 1.0:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
+    if config.potential_shaping < 0.0:
+        raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):
         if not getattr(config, name) > 0.0:
             raise ConfigError(f"{name}: must be > 0, got {getattr(config, name)}")

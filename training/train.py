@@ -12,7 +12,8 @@ are all in environment steps. A batch step runs one gradient update per multiple
 of `train_frequency` it crosses, which keeps the published ratio (one update of
 128 rows per 4 environment steps) for any B.
 
-Transitions: each pursuer's step goes through an n-step window (`Config.n_step`) and,
+Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
+paid as potential differences (`shaped_rewards`); each pursuer's step then goes through an n-step window (`Config.n_step`) and,
 when `Config.store_pursuers` is set, only a random subset of a world step's pursuers
 enter the buffer. A pursuer's transition is terminal when it collides, and when its
 episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
@@ -56,7 +57,7 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
 from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
 from training.checkpoint import Counters, load_checkpoint, network_from_config, read_config, save_checkpoint
-from training.config import CURRICULUM_STAGES, SNAPSHOT_FIELDS, Config, changed_fields
+from training.config import CURRICULUM_STAGES, RETURN_FIELDS, SNAPSHOT_FIELDS, Config, changed_fields
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.networks import QNetwork
@@ -143,10 +144,13 @@ class TransitionStore:
         self.buffer = buffer
         self.config = config
         self.window = NStepWindow(config.n_step, config.gamma, num_rows, buffer.shapes)
+        self.potential = np.zeros(num_rows)
+        """[rows] Phi of the state each row's last step ended in (Config.potential_shaping; 0 before an episode)."""
 
     def new_worlds(self, num_rows: int) -> None:
         """New worlds (a curriculum stage): what was pending is dropped."""
         self.window.reset_shapes(num_rows, self.buffer.shapes)
+        self.potential = np.zeros(num_rows)
 
     def add(
         self,
@@ -168,8 +172,15 @@ class TransitionStore:
         ended = (result.terminated | result.truncated)[:, None]
         terminal = result.collided | (result.terminated[:, None] if self.config.success_ends_transitions else False)
         stops = np.broadcast_to(ended, terminal.shape)
+        rewards = result.reward.ravel()[rows]
+        if self.config.potential_shaping:
+            rewards, potential = shaped_rewards(
+                result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows], terminal.ravel()[rows],
+                self.potential[rows], self.config.gamma, self.config.potential_shaping,
+            )
+            self.potential[rows] = np.where((terminal | stops).ravel()[rows], 0.0, potential)
         sources, done = self.window.push(
-            rows, states, actions.ravel()[rows], result.reward.ravel()[rows],
+            rows, states, actions.ravel()[rows], rewards,
             next_observation.rows(rows).as_inputs(), terminal.ravel()[rows], stops.ravel()[rows],
         )
         keep = np.arange(len(sources))
@@ -181,6 +192,25 @@ class TransitionStore:
             {key: value[keep] for key, value in done.next_observations.items()}, done.dones[keep], done.discounts[keep],
         )
         return len(keep)
+
+
+_GUIDANCE, _COOPERATION = REWARD_TERMS.index("guidance"), REWARD_TERMS.index("cooperation")
+
+
+def shaped_rewards(
+    terms: np.ndarray, terminal: np.ndarray, previous_potential: np.ndarray, gamma: float, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Config.potential_shaping of one step of R pursuers: the step's reward with its income
+    (guidance + max(cooperation, 0)) replaced by gamma * Phi(s') - Phi(s).
+
+    terms [R, len(REWARD_TERMS)] as the world paid them; terminal [R] bool (Phi(s') = 0);
+    previous_potential [R]: Phi(s), the potential the row's last step ended in (0 at an
+    episode's start). Returns the rewards [R] and Phi(s') = scale * income [R].
+    """
+    income = terms[:, _GUIDANCE] + np.maximum(terms[:, _COOPERATION], 0.0)
+    potential = scale * income
+    rewards = terms.sum(-1) - income + gamma * np.where(terminal, 0.0, potential) - previous_potential
+    return rewards, potential
 
 
 def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
@@ -429,8 +459,9 @@ def train(
     if resume is not None:
         saved = Path(resume) / REPLAY_FILE
         unused = "no saved replay buffer"
-        if saved.is_file() and saved_config.reward != config.reward:  # a fine-tune on another reward
-            unused = f"its saved replay buffer holds '{saved_config.reward}' rewards, not '{config.reward}'"
+        return_changes = changed_fields(saved_config, config, RETURN_FIELDS)
+        if saved.is_file() and return_changes:  # a fine-tune that stores other returns
+            unused = f"its saved replay buffer was stored under other {', '.join(return_changes)}"
         elif saved.is_file():
             try:
                 buffer.load(saved)
@@ -441,8 +472,12 @@ def train(
         else:
             learning_starts = counters.env_step + config.learning_starts
             refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
-            held = (f"the {refill_to:,} transitions it held" if counters.replay_transitions
-                    else f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)")
+            if not counters.replay_transitions:
+                held = f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)"
+            elif counters.replay_transitions > refill_to:
+                held = f"its capacity, {refill_to:,} transitions (the checkpoint held {counters.replay_transitions:,})"
+            else:
+                held = f"the {refill_to:,} transitions it held"
             note = (
                 f"resumed from {resume} at environment step {counters.env_step}; {unused}, "
                 f"it is refilled to {held}, and for at least "

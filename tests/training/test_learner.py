@@ -13,7 +13,14 @@ from training.buffer import NStepWindow, ReplayBuffer
 from training.config import Config
 from training.losses import quantile_td_target, td_target
 from training.checkpoint import read_counters
-from training.train import BEST_FOLDER, METRICS_FILE, REPLAY_FILE, snapshot_score, subsample_per_group, train
+from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import World
+from training.train import (
+    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, TransitionStore, shaped_rewards, snapshot_score, subsample_per_group,
+    train,
+)
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
 
@@ -81,6 +88,88 @@ def test_rows_that_do_not_act_keep_their_window():
     push(window, 0, [1.0, 10.0], rows=(0, 1))
     rows, out = push(window, 1, [2.0], rows=(0,))  # row 1 did not act this step
     assert rows.tolist() == [0] and out.rewards.tolist() == [2.0]
+
+
+# ---------------------------------------------------------------- potential shaping
+def pursuer_terms(time=-1.0, guidance=0.0, cooperation=0.0, completion=0.0) -> np.ndarray:
+    """One pursuer's reward terms [1, len(REWARD_TERMS)]."""
+    terms = np.zeros((1, len(REWARD_TERMS)))
+    for name, value in (("time", time), ("guidance", guidance), ("cooperation", cooperation), ("completion", completion)):
+        terms[0, REWARD_TERMS.index(name)] = value
+    return terms
+
+
+def test_holding_an_open_ring_earns_only_the_potential_rent():
+    # guidance 5 + cooperation 5 every step: unshaped +9 a step; shaped (k = 1, gamma 0.9)
+    # the first step pays gamma * 10 - 0 - 1 = 8, later ones 0.9 * 10 - 10 - 1 = -2.
+    potential, rewards = np.zeros(1), []
+    for _ in range(3):
+        reward, potential = shaped_rewards(pursuer_terms(guidance=5.0, cooperation=5.0), np.array([False]), potential, 0.9, 1.0)
+        rewards.append(float(reward[0]))
+    assert rewards == pytest.approx([8.0, -2.0, -2.0])
+
+
+def test_shaping_keeps_the_crowding_penalty_and_zeroes_the_terminal_potential():
+    # crowding (cooperation -10) stays a per-step cost; a terminal step gets no gamma * Phi(s')
+    # and gives back Phi(s) = 2 * 4 = 8; completion is paid as it is.
+    reward, potential = shaped_rewards(
+        pursuer_terms(guidance=4.0, cooperation=-10.0, completion=150.0), np.array([True]), np.array([8.0]), 0.99, 2.0
+    )
+    assert reward.tolist() == pytest.approx([-1.0 - 10.0 + 150.0 - 8.0]) and potential.tolist() == [8.0]
+
+
+def test_shaped_discounted_return_differs_from_the_unshaped_by_the_start_potential_only():
+    # Ng et al.: sum_t gamma^t F_t telescopes to gamma^T Phi(s_T) - Phi(s_0) = 0 for an episode that
+    # ends terminal with Phi(s_0) = 0: the shaped return is the unshaped return of the other terms.
+    rng = np.random.default_rng(3)
+    gamma, steps = 0.97, 12
+    terms = [pursuer_terms(guidance=g, cooperation=c, completion=120.0 * (t == steps - 1))
+             for t, (g, c) in enumerate(zip(rng.uniform(0, 5, steps), rng.uniform(-10, 5, steps)))]
+    potential, shaped, base = np.zeros(1), 0.0, 0.0
+    for t, step_terms in enumerate(terms):
+        reward, potential = shaped_rewards(step_terms, np.array([t == steps - 1]), potential, gamma, 3.0)
+        shaped += gamma**t * reward[0]
+        income = step_terms[0, REWARD_TERMS.index("guidance")] + max(step_terms[0, REWARD_TERMS.index("cooperation")], 0.0)
+        base += gamma**t * (step_terms.sum() - income)
+    assert shaped == pytest.approx(base)
+
+
+def test_the_store_carries_each_pursuers_potential_from_step_to_step():
+    # two steps of a real world: the stored rewards are the shaped ones, the second step's
+    # computed from the potential the first step of the same pursuer ended in.
+    config = tiny(potential_shaping=2.0, gamma=0.9)
+    scenario = Scenario.preset("small-11")
+    rollout = Rollout(World(scenario, 1, seed=5))
+    buffer = ReplayBuffer(1000, scenario.evader_slots)
+    store = TransitionStore(buffer, config, scenario.pursuers)
+    rng = np.random.default_rng(0)
+    potential, expected = np.zeros(scenario.pursuers), []
+    for _ in range(2):
+        turn = rollout.turn()
+        states = turn.observation.rows(turn.rows).as_inputs()
+        step = rollout.step(rng.integers(0, 9, len(turn.rows)))
+        store.add(turn.rows, states, step.actions, step.observation, step.result, rng)
+        reward, potential = shaped_rewards(step.result.reward_terms[0], step.result.collided[0], potential, 0.9, 2.0)
+        expected += reward.tolist()
+    assert buffer.rewards[: len(buffer)].tolist() == pytest.approx(expected, rel=1e-6)
+    assert len(buffer) == 2 * scenario.pursuers
+
+
+def test_a_shaped_run_trains_and_records_its_setting(tmp_path):
+    run = tmp_path / "shaped"
+    train(tiny(potential_shaping=1.0, total_steps=320), run, show_progress=False)
+    assert json.loads((run / "config.json").read_text())["potential_shaping"] == 1.0
+    assert read_counters(run).updates > 0
+
+
+def test_fine_tune_with_shaping_refills_rather_than_learn_from_unshaped_returns(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "shaped"
+    train(tiny(), run, show_progress=False)
+    held = read_counters(run).replay_transitions
+    assert fine_tune(run, out, tiny(potential_shaping=1.0, total_steps=560, buffer_size=1000), tmp_path) == 0
+    note = next(r["note"] for r in records(out) if r["kind"] == "resume")
+    assert "its saved replay buffer was stored under other potential_shaping" in note
+    assert f"refilled to its capacity, 1,000 transitions (the checkpoint held {held:,})" in note
 
 
 # ---------------------------------------------------------------- double DQN
@@ -210,7 +299,7 @@ def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(
     assert (run / REPLAY_FILE).is_file()
     assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560), tmp_path) == 0
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
-    assert "its saved replay buffer holds 'paper' rewards, not 'published'" in note
+    assert "its saved replay buffer was stored under other reward, success_ends_transitions" in note
     assert "evaluated anew" not in note  # same scenarios: the best carries on
 
 
