@@ -6,6 +6,8 @@ A checkpoint is a folder (the run's output folder) holding the last save:
 - config.json: the `Config` of the run;
 - state.json: counters and the Python, NumPy and torch RNG states, written last,
   so a folder with a state.json holds a complete checkpoint.
+A snapshot (`save_snapshot`, Config.keep_snapshots) holds the online network, config.json
+and a state.json of counters alone: it exports and evaluates, it does not resume.
 Nothing here unpickles arbitrary objects.
 """
 
@@ -107,15 +109,34 @@ def save_checkpoint(
     """Write the checkpoint files into `folder` (created if needed) and return it."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    weights_metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
-    for name, network in ((MODEL_FILE, model), (TARGET_FILE, target)):
-        state = {key: value.detach().cpu().contiguous() for key, value in network.state_dict().items()}
-        _replace_file(folder / name, lambda path: save_file(state, str(path), metadata=weights_metadata))
+    _write_weights(folder / MODEL_FILE, model, config, counters)
+    _write_weights(folder / TARGET_FILE, target, config, counters)
     _replace_file(folder / OPTIMIZER_FILE, lambda path: torch.save(optimizer.state_dict(), path))
     _replace_file(folder / CONFIG_FILE, config.to_file)
-    state = {"format": FORMAT_VERSION, "counters": asdict(counters), "rng": rng_states(rng)}
-    _replace_file(folder / STATE_FILE, lambda path: path.write_text(json.dumps(state) + "\n"))
+    _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(counters), "rng": rng_states(rng)})
     return folder
+
+
+def save_snapshot(folder: str | Path, config: Config, model: QNetwork, counters: Counters) -> Path:
+    """Write the online network alone into `folder` (model.safetensors, config.json and a
+    state.json of counters): enough to export or evaluate it, not to resume training."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _write_weights(folder / MODEL_FILE, model, config, counters)
+    _replace_file(folder / CONFIG_FILE, config.to_file)
+    _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(counters)})
+    return folder
+
+
+def _write_weights(path: Path, network: QNetwork, config: Config, counters: Counters) -> None:
+    metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
+    state = {key: value.detach().cpu().contiguous() for key, value in network.state_dict().items()}
+    _replace_file(path, lambda temporary: save_file(state, str(temporary), metadata=metadata))
+
+
+def _write_state(folder: Path, state: dict[str, Any]) -> None:
+    """state.json, written last: a folder with one holds a whole checkpoint or snapshot."""
+    _replace_file(folder / STATE_FILE, lambda path: path.write_text(json.dumps(state) + "\n"))
 
 
 def _checkpoint_folder(source: str | Path) -> Path:
@@ -156,6 +177,11 @@ def load_checkpoint(
     """Load weights, optimizer state and RNG states saved by `save_checkpoint`; return the counters."""
     folder = _checkpoint_folder(source)
     state = _read_state(folder)
+    if "rng" not in state:
+        raise ValueError(
+            f"{folder}: a snapshot of the online network alone (no target network, optimizer or RNG "
+            "states), which can be exported or evaluated but not resumed; resume from its run folder or best/"
+        )
     model.load_state_dict(load_file(str(folder / MODEL_FILE)))
     target.load_state_dict(load_file(str(folder / TARGET_FILE)))
     optimizer.load_state_dict(torch.load(folder / OPTIMIZER_FILE, weights_only=True))

@@ -146,6 +146,9 @@ class Config:
     """episodes per scenario of a snapshot evaluation."""
     snapshot_preset: str = "medium-48"
     """the larger preset every snapshot is also evaluated on."""
+    keep_snapshots: bool = False
+    """also write every snapshot's online network to snapshots/<env_step>/ (about 0.5 MB
+    each at H = 64), to choose among them later on larger evaluations than a snapshot's."""
 
     def __post_init__(self) -> None:
         _validate(self)

@@ -28,7 +28,8 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "stage": env_step and the curriculum stage that starts there;
 - "resume": env_step and how the replay buffer was restored (loaded, or refilled);
 - "snapshot": env_step, the greedy evaluations of a snapshot (current stage and
-  `Config.snapshot_preset`), its score and whether it became the best (kept in best/).
+  `Config.snapshot_preset`), its score and whether it became the best (kept in best/;
+  with `Config.keep_snapshots` every snapshot's network is kept in snapshots/<env_step>/).
 
 `train` is the loop, read top to bottom; the helpers before it do one thing each.
 `benchmark` times the loop's two halves (rollout, update) apart.
@@ -56,7 +57,9 @@ from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
 from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
-from training.checkpoint import Counters, load_checkpoint, network_from_config, read_config, save_checkpoint
+from training.checkpoint import (
+    Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot,
+)
 from training.config import CURRICULUM_STAGES, RETURN_FIELDS, SNAPSHOT_FIELDS, Config, changed_fields
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
@@ -66,6 +69,8 @@ REPLAY_FILE = "replay.npz"
 """The saved replay buffer, beside the checkpoint files (Config.save_replay)."""
 BEST_FOLDER = "best"
 """Subfolder of the run holding the best snapshot so far, as a checkpoint."""
+SNAPSHOTS_FOLDER = "snapshots"
+"""Subfolder of the run holding every snapshot's online network by environment step (Config.keep_snapshots)."""
 RECENT_EPISODES = 100
 """Finished episodes behind the success rate and mean return of the progress line and log."""
 PROGRESS_SECONDS = 1.0
@@ -566,6 +571,8 @@ def train(
         ):
             record, better = take_snapshot(model, scenario, config, counters.best_score)
             write_record(log_path, {**record, "env_step": counters.env_step})
+            if config.keep_snapshots:
+                save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
             if better:
                 counters.best_score, counters.best_step = record["score"], counters.env_step
                 counters.replay_transitions = len(buffer)

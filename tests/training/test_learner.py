@@ -18,7 +18,7 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.train import (
-    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, TransitionStore, shaped_rewards, snapshot_score, subsample_per_group,
+    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, shaped_rewards, snapshot_score, subsample_per_group,
     train,
 )
 
@@ -255,6 +255,21 @@ def test_best_snapshot_is_kept_and_logged(tmp_path):
     assert json.loads((run / BEST_FOLDER / "state.json").read_text())["counters"]["env_step"] == first_best["env_step"]
     assert [r["best"] for r in snapshots][0] is True
 
+
+
+def test_kept_snapshots_export_and_refuse_to_resume(tmp_path):
+    from training.checkpoint import export_checkpoint, load_network
+
+    run = tmp_path / "run"
+    train(tiny(snapshot_frequency=160, keep_snapshots=True, total_steps=320), run, show_progress=False)
+    kept = sorted((run / SNAPSHOTS_FOLDER).iterdir(), key=lambda folder: int(folder.name))
+    assert [folder.name for folder in kept] == ["160", "320"]
+    assert sorted(path.name for path in kept[0].iterdir()) == ["config.json", "model.safetensors", "state.json"]
+    model, config, counters = load_network(kept[0])
+    assert counters.env_step == 160 and config.keep_snapshots
+    assert export_checkpoint(kept[0], tmp_path / "160.onnx").is_file()
+    with pytest.raises(ValueError, match="not resumed; resume from its run folder or best/"):
+        train(config, tmp_path / "resumed", resume=kept[0], show_progress=False)
 
 def test_dropout_of_the_transformer_layers_comes_from_the_config():
     from training.checkpoint import network_from_config
