@@ -11,22 +11,24 @@ from terl_rt import Scenario, Simulator
 from terl_rt.policy.onnx_policy import OnnxPolicy, check_contract
 
 EXPORTED = Path(__file__).resolve().parent.parent / "exported"
-SHIPPED = sorted(EXPORTED.glob("*.onnx"))
+SHIPPED = sorted(EXPORTED.rglob("*.onnx"))
+"""The default policy (exported/terl.onnx) and the equal-budget comparison (exported/comparison/)."""
+IDS = [str(path.relative_to(EXPORTED)) for path in SHIPPED]
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_meets_the_contract(path):
     report = check_contract(path, strict=True)
     assert report.ok
     assert "terl.training_steps" in report.metadata and "terl.trained_on" in report.metadata
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_has_a_model_card(path):
     assert path.with_suffix(".md").is_file(), f"{path.name} ships without {path.with_suffix('.md').name}"
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_acts_on_every_evader_slot_count(path):
     policy = OnnxPolicy(path, threads=1)
     for name in ("small-15", "medium-48", "large-80", "cc-28"):
@@ -36,7 +38,7 @@ def test_shipped_policy_acts_on_every_evader_slot_count(path):
         assert np.all((actions >= 0) & (actions < 9))
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.name for p in SHIPPED])
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_is_named_after_its_model(path):
-    """exported/<model>.onnx: the report and the comparison name a method by terl.model."""
+    """exported/[comparison/]<model>.onnx: the report and the comparison name a method by terl.model."""
     assert OnnxPolicy(path, threads=1).name == path.stem

@@ -58,12 +58,12 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     config.to_file(config_file)
     assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"]) == 0
     card_path = tmp_path / "iqn.md"
-    assert main(["card", str(out), "--onnx", "exported/iqn.onnx", "--config", str(config_file),
+    assert main(["card", str(out), "--onnx", "exported/comparison/iqn.onnx", "--config", str(config_file),
                  "-o", str(card_path)]) == 0
     card = card_path.read_text()
     counters = read_counters(out)
     model = load_network(out)[0]
-    assert card.startswith("# exported/iqn.onnx — IQN, a run of 0 k environment steps")
+    assert card.startswith("# exported/comparison/iqn.onnx — IQN, a run of 0 k environment steps")
     assert f"**{sum(p.numel() for p in model.parameters()):,} parameters**" in card
     assert f"**320 environment steps, {counters.updates:,} gradient updates" in card
     snapshots = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]
