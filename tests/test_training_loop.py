@@ -28,7 +28,7 @@ from training.train import (
     learn,
     recent_means,
     train,
-    training_scenario,
+    training_scenarios,
     TransitionStore,
 )
 
@@ -107,8 +107,9 @@ def test_epsilon_falls_linearly_over_the_first_quarter_then_stays():
 @pytest.mark.parametrize("variant", ["paper", "published"])
 def test_training_worlds_use_the_configs_reward_variant(variant):
     config = Config(reward=variant, total_steps=700)
-    assert training_scenario(config, 0).reward == variant
-    assert training_scenario(config.replace(curriculum=False), 0).reward == variant
+    assert [scenario.reward for scenario in training_scenarios(config, 0)] == [variant]
+    mixed = config.replace(curriculum=False, mixed_scenarios=("medium-48",))
+    assert [scenario.reward for scenario in training_scenarios(mixed, 0)] == [variant, variant]
 
 
 def test_unknown_reward_variant_is_a_config_error():
@@ -118,10 +119,10 @@ def test_unknown_reward_variant_is_a_config_error():
 
 def test_curriculum_stage_shares_and_training_episode_limit_come_from_the_config():
     config = tiny_config(total_steps=1000, curriculum_shares=(1.0, 1.0, 1.0, 1.0, 6.0), train_max_steps=500)
-    names = {step: training_scenario(config, step).name for step in (0, 99, 100, 399, 400, 999)}
+    names = {step: training_scenarios(config, step)[0].name for step in (0, 99, 100, 399, 400, 999)}
     assert names == {0: "curriculum-1", 99: "curriculum-1", 100: "curriculum-2", 399: "curriculum-4",
                      400: "curriculum-5", 999: "curriculum-5"}
-    assert training_scenario(config, 0).max_steps == 500
+    assert training_scenarios(config, 0)[0].max_steps == 500
     with pytest.raises(ConfigError, match="curriculum_shares: must be 5 positive numbers"):
         tiny_config(curriculum_shares=(1.0, 2.0))
 
@@ -143,10 +144,10 @@ def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
 
 def test_a_run_longer_than_its_curriculum_stays_in_the_last_stage():
     config = tiny_config(total_steps=2000, curriculum_steps=1000)
-    names = {step: training_scenario(config, step).name for step in (0, 286, 999, 1000, 1999)}
+    names = {step: training_scenarios(config, step)[0].name for step in (0, 286, 999, 1000, 1999)}
     assert names == {0: "curriculum-1", 286: "curriculum-2", 999: "curriculum-5", 1000: "curriculum-5", 1999: "curriculum-5"}
     # Without curriculum_steps the boundaries scale to total_steps.
-    assert training_scenario(config.replace(curriculum_steps=0), 999).name == "curriculum-2"
+    assert training_scenarios(config.replace(curriculum_steps=0), 999)[0].name == "curriculum-2"
 
 
 # ---------------------------------------------------------------- replay

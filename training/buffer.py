@@ -163,6 +163,27 @@ class ReplayBuffer:
             )
 
 
+def pad_evader_slots(inputs: Mapping[str, np.ndarray], evader_slots: int) -> dict[str, np.ndarray]:
+    """Observation arrays [R, ...] (contract layout) with their E evader slots widened to
+    `evader_slots` >= E: the added slots are empty (zero tokens, mask False), as a world fills
+    slots it has no evader for, so a network's output does not change. Scenarios with fewer
+    evader slots then share a buffer with larger ones (Config.mixed_scenarios)."""
+    evaders = inputs["evaders"]
+    rows, slots = evaders.shape[:2]
+    if slots == evader_slots:
+        return dict(inputs)
+    if slots > evader_slots:
+        raise ValueError(f"pad_evader_slots: the inputs have {slots} evader slots, more than {evader_slots}")
+    extra = evader_slots - slots
+    mask = inputs["mask"]
+    end = mask.shape[1] - inputs["obstacles"].shape[1]  # mask columns: ego, teammates, evaders | obstacles
+    return {
+        **inputs,
+        "evaders": np.concatenate([evaders, np.zeros((rows, extra) + evaders.shape[2:], evaders.dtype)], axis=1),
+        "mask": np.concatenate([mask[:, :end], np.zeros((rows, extra), bool), mask[:, end:]], axis=1),
+    }
+
+
 class NStepWindow:
     """Turns per-step transitions of fixed rows (pursuer b * N + i of B worlds) into
     n-step transitions: R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}, bootstrapped

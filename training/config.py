@@ -60,6 +60,11 @@ class Config:
     a longer run stays in the last stage after them (how a finished run is extended)."""
     scenario: str = "small-15"
     """preset trained on when curriculum is false (ignored otherwise)."""
+    mixed_scenarios: tuple[str, ...] = ()
+    """presets trained on beside `scenario` when curriculum is false: B worlds of each, the
+    batch steps going to `scenario`'s worlds and these in turn, every transition into the one
+    replay buffer, so no stretch of updates sees one team size alone (empty: `scenario`
+    alone). The buffer rows take the most evader slots of them, the others padded with empty slots."""
     curriculum_shares: tuple[float, ...] = (2.0, 2.0, 1.0, 1.0, 1.0)
     """share of curriculum_steps each of the five stages gets, in stage order (normalised;
     the published 2 M / 2 M / 1 M / 1 M / 1 M of 7 M)."""
@@ -116,6 +121,13 @@ class Config:
     step): holding a ring open then earns nothing a step, the approach still pays, and the
     best policy of the other terms (time, collision, emergency, boundary, crowding,
     completion) is unchanged (potential-based shaping, Ng, Harada and Russell 1999)."""
+    collision_value: float = 0.0
+    """V_c: the value a collided pursuer's (terminal) transition ends on, in return units: its
+    stored return gains gamma * V_c in the step it collides (0: nothing, the published setting).
+    Under either reward variant a collision ends a pursuer's time, emergency and crowding
+    penalties, so in a crowded endgame the -80 of a collision costs little more than staying;
+    V_c = -100 = -1 / (1 - gamma) charges the dead pursuer the time term for ever, so a
+    collision never pays."""
     store_pursuers: int = 0
     """pursuer transitions of each world step that enter the replay buffer, a random subset
     of the pursuers that acted (0: all of them, the published setting)."""
@@ -217,7 +229,7 @@ class Config:
 NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
 """Fields that fix the network's weights: a checkpoint continues only under the same values."""
 
-RETURN_FIELDS = ("reward", "potential_shaping", "gamma", "n_step", "success_ends_transitions")
+RETURN_FIELDS = ("reward", "potential_shaping", "collision_value", "gamma", "n_step", "success_ends_transitions")
 """Fields that fix what a stored transition holds (its return, discount and done): a saved
 replay buffer is reused only under the same values."""
 
@@ -242,18 +254,27 @@ def packaged_configs() -> tuple[str, ...]:
     return tuple(sorted(name[: -len(".json")] for name in names if name.endswith(".json")))
 
 
+def _item_type(expected: Any) -> Any:
+    """The item type of a `tuple[T, ...]` field."""
+    return typing.get_args(expected)[0]
+
+
 def _type_name(expected: Any) -> str:
-    return "a list of numbers" if typing.get_origin(expected) is tuple else expected.__name__
+    if typing.get_origin(expected) is tuple:
+        return "a list of numbers" if _item_type(expected) is float else "a list of strings"
+    return expected.__name__
 
 
 def _convert(value: Any, expected: Any) -> Any:
-    return tuple(float(v) for v in value) if typing.get_origin(expected) is tuple else expected(value)
+    if typing.get_origin(expected) is tuple:
+        return tuple(_item_type(expected)(v) for v in value)
+    return expected(value)
 
 
 def _has_type(value: Any, expected: Any) -> bool:
-    """JSON value check: bool is not an int, an int is a valid float, a tuple is a list of numbers."""
+    """JSON value check: bool is not an int, an int is a valid float, a tuple is a list of its items."""
     if typing.get_origin(expected) is tuple:
-        return isinstance(value, (list, tuple)) and all(_has_type(v, float) for v in value)
+        return isinstance(value, (list, tuple)) and all(_has_type(v, _item_type(expected)) for v in value)
     if expected is bool:
         return isinstance(value, bool)
     if isinstance(value, bool):
@@ -284,6 +305,11 @@ def _validate(config: Config) -> None:
         raise ConfigError(f"device: must be 'cpu' or 'cuda[:K]', got '{config.device}'")
     if config.scenario not in PRESETS:
         raise ConfigError(f"scenario: unknown preset '{config.scenario}'; presets are {', '.join(PRESETS)}")
+    for name in config.mixed_scenarios:
+        if name not in PRESETS:
+            raise ConfigError(f"mixed_scenarios: unknown preset '{name}'; presets are {', '.join(PRESETS)}")
+    if len(set((config.scenario,) + config.mixed_scenarios)) != 1 + len(config.mixed_scenarios):
+        raise ConfigError(f"mixed_scenarios: a preset appears twice in {[config.scenario, *config.mixed_scenarios]}")
     positive = (
         "hidden", "threads", "total_steps", "num_envs", "batch_size", "buffer_size",
         "train_frequency", "target_network_frequency", "num_quantiles",
@@ -311,6 +337,8 @@ def _validate(config: Config) -> None:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
     if config.potential_shaping < 0.0:
         raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
+    if config.collision_value > 0.0:
+        raise ConfigError(f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {config.collision_value}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):
         if not getattr(config, name) > 0.0:
             raise ConfigError(f"{name}: must be > 0, got {getattr(config, name)}")

@@ -3,7 +3,9 @@
 Centralised training, decentralised execution (policy.md section 2): B worlds are
 stepped together; one batched forward of the online network chooses the action of
 every active pursuer of every world (epsilon-greedy per pursuer), and every active
-pursuer's transition goes into one replay buffer.
+pursuer's transition goes into one replay buffer. With `Config.mixed_scenarios` there is a
+group of B worlds per scenario (`WorldGroup`) and the batch steps go to the groups in turn,
+all into the one buffer (rows padded to the most evader slots).
 
 Counting: an environment step is one step of one world, so a batch step is B
 environment steps; `Config.total_steps`, `learning_starts`, `train_frequency`,
@@ -13,7 +15,8 @@ of `train_frequency` it crosses, which keeps the published ratio (one update of
 128 rows per 4 environment steps) for any B.
 
 Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
-paid as potential differences (`shaped_rewards`); each pursuer's step then goes through an n-step window (`Config.n_step`) and,
+paid as potential differences (`shaped_rewards`), with `Config.collision_value` a collision
+ends on that value instead of 0; each pursuer's step then goes through an n-step window (`Config.n_step`) and,
 when `Config.store_pursuers` is set, only a random subset of a world step's pursuers
 enter the buffer. A pursuer's transition is terminal when it collides, and when its
 episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
@@ -56,7 +59,7 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
-from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer
+from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer, pad_evader_slots
 from training.checkpoint import (
     Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot,
 )
@@ -95,14 +98,19 @@ def curriculum_scenario(env_step: int, curriculum_steps: int, shares: tuple[floa
     return Scenario.preset(CURRICULUM_STAGES[stage])
 
 
-def training_scenario(config: Config, env_step: int) -> Scenario:
-    """The scenario trained on at `env_step`: the curriculum stage, or the fixed preset,
-    with the config's reward variant and training episode limit."""
+def training_scenarios(config: Config, env_step: int) -> list[Scenario]:
+    """The scenarios trained on at `env_step`: the curriculum stage, or the fixed preset and
+    `config.mixed_scenarios`, with the config's reward variant and training episode limit."""
     if config.curriculum:
-        scenario = curriculum_scenario(env_step, config.curriculum_steps or config.total_steps, config.curriculum_shares)
+        scenarios = [curriculum_scenario(env_step, config.curriculum_steps or config.total_steps, config.curriculum_shares)]
     else:
-        scenario = Scenario.preset(config.scenario)
-    return scenario.replace(reward=config.reward, max_steps=config.train_max_steps)
+        scenarios = [Scenario.preset(name) for name in (config.scenario, *config.mixed_scenarios)]
+    return [scenario.replace(reward=config.reward, max_steps=config.train_max_steps) for scenario in scenarios]
+
+
+def buffer_evader_slots(scenarios: list[Scenario]) -> int:
+    """Evader slots of the replay buffer rows: the most of the scenarios (the others are padded)."""
+    return max(scenario.evader_slots for scenario in scenarios)
 
 
 def crossings(before: int, after: int, every: int) -> int:
@@ -152,11 +160,6 @@ class TransitionStore:
         self.potential = np.zeros(num_rows)
         """[rows] Phi of the state each row's last step ended in (Config.potential_shaping; 0 before an episode)."""
 
-    def new_worlds(self, num_rows: int) -> None:
-        """New worlds (a curriculum stage): what was pending is dropped."""
-        self.window.reset_shapes(num_rows, self.buffer.shapes)
-        self.potential = np.zeros(num_rows)
-
     def add(
         self,
         rows: np.ndarray,
@@ -167,13 +170,17 @@ class TransitionStore:
         rng: np.random.Generator,
     ) -> int:
         """Add the step of every pursuer that acted (rows [R] b * N + n and their states [R, ...],
-        actions [B, N]); returns the transitions stored.
+        actions [B, N]); returns the transitions stored. Observations with fewer evader slots
+        than the buffer's are padded to them (`pad_evader_slots`).
 
         Terminal: the pursuer collided, or its episode terminated (all evaders encircled,
         or too few pursuers left) when Config.success_ends_transitions. Truncated
         episodes, and terminated ones otherwise, are bootstrapped.
         """
         num_pursuers = result.collided.shape[1]
+        slots = self.buffer.shapes["evaders"][0]
+        states = pad_evader_slots(states, slots)
+        next_states = pad_evader_slots(next_observation.rows(rows).as_inputs(), slots)
         ended = (result.terminated | result.truncated)[:, None]
         terminal = result.collided | (result.terminated[:, None] if self.config.success_ends_transitions else False)
         stops = np.broadcast_to(ended, terminal.shape)
@@ -184,9 +191,11 @@ class TransitionStore:
                 self.potential[rows], self.config.gamma, self.config.potential_shaping,
             )
             self.potential[rows] = np.where((terminal | stops).ravel()[rows], 0.0, potential)
+        if self.config.collision_value:
+            rewards = rewards + np.where(result.collided.ravel()[rows], self.config.gamma * self.config.collision_value, 0.0)
         sources, done = self.window.push(
             rows, states, actions.ravel()[rows], rewards,
-            next_observation.rows(rows).as_inputs(), terminal.ravel()[rows], stops.ravel()[rows],
+            next_states, terminal.ravel()[rows], stops.ravel()[rows],
         )
         keep = np.arange(len(sources))
         if self.config.store_pursuers:
@@ -197,6 +206,20 @@ class TransitionStore:
             {key: value[keep] for key, value in done.next_observations.items()}, done.dones[keep], done.discounts[keep],
         )
         return len(keep)
+
+
+class WorldGroup:
+    """B worlds of one scenario under training: their rollout, the transition store of their
+    pursuer rows, and the sums of the episodes under way."""
+
+    def __init__(self, scenario: Scenario, buffer: ReplayBuffer, config: Config, rng: np.random.Generator) -> None:
+        self.scenario = scenario
+        self.rollout = Rollout(World(scenario, config.num_envs, seed=int(rng.integers(2**31))))
+        self.transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
+        self.returns = np.zeros(config.num_envs)
+        """[B] per-pursuer return of each world's episode so far (summed rewards / N)."""
+        self.terms = np.zeros((config.num_envs, len(REWARD_TERMS)))
+        """[B, terms] the same split by reward term."""
 
 
 _GUIDANCE, _COOPERATION = REWARD_TERMS.index("guidance"), REWARD_TERMS.index("cooperation")
@@ -456,8 +479,8 @@ def train(
         if evaluation_changes:
             counters.best_score, counters.best_step = None, None
     progress = Progress(show_progress, counters.env_step)
-    scenario = training_scenario(config, counters.env_step)
-    buffer = ReplayBuffer(config.buffer_size, scenario.evader_slots)
+    scenarios = training_scenarios(config, counters.env_step)
+    buffer = ReplayBuffer(config.buffer_size, buffer_evader_slots(scenarios))
     learning_starts = config.learning_starts
     refill_to = 0
     """transitions the buffer must hold again before updates resume (0: none to wait for)."""
@@ -493,14 +516,12 @@ def train(
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
         progress.note(note)
 
-    # --- environments
+    # --- environments: a group of B worlds per scenario, stepped in turn
     num_envs = config.num_envs
-    rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
-    transitions = TransitionStore(buffer, config, num_envs * scenario.pursuers)
-    if scenario.name not in counters.stages:
-        counters.stages.append(scenario.name)
-    episode_returns = np.zeros(num_envs)
-    episode_terms = np.zeros((num_envs, len(REWARD_TERMS)))  # the same split by reward term
+    groups = [WorldGroup(scenario, buffer, config, rng) for scenario in scenarios]
+    stage_name = "+".join(scenario.name for scenario in scenarios)
+    if stage_name not in counters.stages:
+        counters.stages.append(stage_name)
     recent: deque = deque(maxlen=RECENT_EPISODES)
     losses: list[float] = []
     last_loss: float | None = None
@@ -509,37 +530,35 @@ def train(
 
     while counters.env_step < config.total_steps:
         # --- curriculum: a new stage gets new worlds; episodes under way are dropped
-        stage = training_scenario(config, counters.env_step)
-        if stage.name != scenario.name:
-            scenario = stage
-            rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
-            transitions.new_worlds(num_envs * scenario.pursuers)
-            episode_returns[:] = 0.0
-            episode_terms[:] = 0.0
-            if scenario.name not in counters.stages:
-                counters.stages.append(scenario.name)
-            write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": scenario.name})
-            progress.note(f"environment step {counters.env_step}: stage {scenario.name}")
+        stage = training_scenarios(config, counters.env_step)
+        if [scenario.name for scenario in stage] != [group.scenario.name for group in groups]:
+            groups = [WorldGroup(scenario, buffer, config, rng) for scenario in stage]
+            stage_name = "+".join(scenario.name for scenario in stage)
+            if stage_name not in counters.stages:
+                counters.stages.append(stage_name)
+            write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
+            progress.note(f"environment step {counters.env_step}: stage {stage_name}")
+        group = groups[counters.env_step // num_envs % len(groups)]
 
         # --- collect: one batched forward for every active pursuer, epsilon-greedy each
         epsilon = linear_schedule(
             config.start_e, config.end_e, config.exploration_fraction * config.total_steps, counters.env_step
         )
-        turn = rollout.turn()  # restarts the worlds whose episode ended in the last step
+        turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
         states = turn.observation.rows(turn.rows).as_inputs()
-        step = rollout.step(epsilon_greedy(model, states, epsilon, rng))
+        step = group.rollout.step(epsilon_greedy(model, states, epsilon, rng))
 
         # --- store (the next observation is the one before any restart)
-        transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
+        group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
 
         # --- episode bookkeeping
-        episode_returns += step.result.reward.sum(axis=1) / scenario.pursuers
-        episode_terms += step.result.reward_terms.sum(axis=1) / scenario.pursuers
+        group.returns += step.result.reward.sum(axis=1) / group.scenario.pursuers
+        group.terms += step.result.reward_terms.sum(axis=1) / group.scenario.pursuers
         for env, outcome in step.outcomes.items():
             recent.append(
-                (outcome.success, episode_returns[env], outcome.collision_ratio, outcome.steps, episode_terms[env].copy())
+                (outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps, group.terms[env].copy())
             )
-            episode_returns[env], episode_terms[env] = 0.0, 0.0
+            group.returns[env], group.terms[env] = 0.0, 0.0
             counters.episodes += 1
         previous_step = counters.env_step
         counters.env_step += num_envs
@@ -565,11 +584,11 @@ def train(
         if config.eval_frequency and (
             crossings(previous_step, counters.env_step, config.eval_frequency) or finished
         ):
-            evaluation = greedy_evaluation(model, scenario, config)
+            evaluation = greedy_evaluation(model, groups[0].scenario, config)
         if config.snapshot_frequency and (
             crossings(previous_step, counters.env_step, config.snapshot_frequency) or finished
         ):
-            record, better = take_snapshot(model, scenario, config, counters.best_score)
+            record, better = take_snapshot(model, groups[0].scenario, config, counters.best_score)
             write_record(log_path, {**record, "env_step": counters.env_step})
             if config.keep_snapshots:
                 save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
@@ -585,7 +604,7 @@ def train(
                 "env_step": counters.env_step,
                 "episodes": counters.episodes,
                 "updates": counters.updates,
-                "stage": scenario.name,
+                "stage": stage_name,
                 "epsilon": epsilon,
                 "loss": float(np.mean(losses)) if losses else None,
                 **recent_means(recent),
@@ -609,7 +628,7 @@ def train(
                 f"step {counters.env_step:,}/{config.total_steps:,} | "
                 f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
                 f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
-                f"eps {epsilon:.3f} | updates {counters.updates} | {scenario.name}"
+                f"eps {epsilon:.3f} | updates {counters.updates} | {stage_name}"
             )
 
         # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
@@ -656,14 +675,16 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
     model, target, optimizer = build_learner(config)
-    buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), training_scenario(config, 0).evader_slots)
 
     # Scenarios of the run with their shares of the steps.
     if config.curriculum:
         total = sum(config.curriculum_shares)
         shares = {name: share / total for name, share in zip(CURRICULUM_STAGES, config.curriculum_shares)}
     else:
-        shares = {config.scenario: 1.0}
+        names = (config.scenario, *config.mixed_scenarios)
+        shares = {name: 1.0 / len(names) for name in names}
+    slots = buffer_evader_slots([Scenario.preset(name) for name in shares])
+    buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), slots)
 
     rates = {}
     for name in shares:

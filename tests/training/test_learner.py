@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from training.buffer import NStepWindow, ReplayBuffer
-from training.config import Config
+from training.buffer import NStepWindow, ReplayBuffer, pad_evader_slots
+from training.checkpoint import network_from_config
+from training.config import Config, ConfigError
+from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
 from training.checkpoint import read_counters
 from terl_rt.sim.reward import REWARD_TERMS
@@ -323,3 +325,64 @@ def test_fine_tune_refuses_another_network(tmp_path, capsys):
     train(tiny(total_steps=80, learning_starts=0), run, show_progress=False)
     assert fine_tune(run, tmp_path / "wider", tiny(hidden=32, total_steps=160), tmp_path) == 2
     assert "hidden 32 against 16" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- several team sizes in one run
+def test_padded_evader_slots_are_empty_and_leave_the_q_values_unchanged():
+    rollout = Rollout(World(Scenario.preset("small-15"), 1, seed=3))
+    turn = rollout.turn()
+    inputs = turn.observation.rows(turn.rows).as_inputs()  # 8 evader slots
+    padded = pad_evader_slots(inputs, 20)
+    assert padded["evaders"].shape == (15, 20, 7) and padded["mask"].shape == (15, 1 + 5 + 20 + 5)
+    assert not padded["evaders"][:, 8:].any() and not padded["mask"][:, 14:26].any()
+    assert (padded["mask"][:, :14] == inputs["mask"][:, :14]).all()
+    assert (padded["mask"][:, 26:] == inputs["mask"][:, 14:]).all()  # the obstacles' columns move past the padding
+    model = network_from_config(tiny()).eval()
+    with torch.no_grad():
+        q = [model.q_values(*(torch.from_numpy(rows[key]) for key in INPUT_NAMES)) for rows in (inputs, padded)]
+    assert torch.allclose(q[0], q[1], atol=1e-6)
+    with pytest.raises(ValueError, match="20 evader slots, more than 8"):
+        pad_evader_slots(padded, 8)
+
+
+def test_a_mixed_run_steps_each_team_in_turn_into_one_buffer(tmp_path):
+    run = tmp_path / "mixed"
+    # 80 batch steps of 2 worlds, 40 for each team: at most 40 * 2 * (15 + 48) = 5,040 transitions
+    # (48-pursuer worlds alone would give up to 7,680, 15-pursuer ones up to 2,400).
+    config = tiny(curriculum=False, scenario="small-15", mixed_scenarios=("medium-48",), num_envs=2, total_steps=160)
+    counters = train(config, run, show_progress=False)
+    assert counters.stages == ["small-15+medium-48"]
+    saved = np.load(run / REPLAY_FILE)
+    assert int(saved["evader_slots"]) == 14  # medium-48's, the small-15 rows padded to it
+    assert 40 * 2 * 48 < saved["rewards"].size <= 40 * 2 * (15 + 48)
+    assert {r["stage"] for r in records(run) if r["kind"] == "train"} == {"small-15+medium-48"}
+
+
+def test_mixed_scenarios_must_be_presets_named_once():
+    with pytest.raises(ConfigError, match="mixed_scenarios: unknown preset 'huge-500'"):
+        tiny(curriculum=False, mixed_scenarios=("huge-500",))
+    with pytest.raises(ConfigError, match="mixed_scenarios: a preset appears twice"):
+        tiny(curriculum=False, scenario="small-15", mixed_scenarios=("small-15",))
+    with pytest.raises(ConfigError, match="'mixed_scenarios' must be a list of strings"):
+        Config.from_dict({"mixed_scenarios": [1, 2]})
+
+
+# ---------------------------------------------------------------- the value of a collision
+def test_a_collision_ends_on_the_collision_value_and_other_steps_are_unchanged():
+    scenario = Scenario.preset("small-11")
+    stored = {}
+    for value in (0.0, -100.0):
+        rollout = Rollout(World(scenario, 1, seed=5))
+        buffer = ReplayBuffer(100, scenario.evader_slots)
+        store = TransitionStore(buffer, tiny(collision_value=value, gamma=0.9), scenario.pursuers)
+        turn = rollout.turn()
+        states = turn.observation.rows(turn.rows).as_inputs()
+        step = rollout.step(np.zeros(len(turn.rows), np.int64))
+        step.result.collided[0, :2] = True  # pursuers 0 and 1 collide in this step
+        store.add(turn.rows, states, step.actions, step.observation, step.result, np.random.default_rng(0))
+        stored[value] = buffer.rewards[: len(buffer)].copy()
+        assert buffer.dones[:2].all() and not buffer.dones[2 : len(buffer)].any()
+    assert stored[-100.0][:2] == pytest.approx(stored[0.0][:2] - 90.0)  # gamma * V_c
+    assert (stored[-100.0][2:] == stored[0.0][2:]).all()
+    with pytest.raises(ConfigError, match="collision_value: must be <= 0"):
+        tiny(collision_value=5.0)
