@@ -46,7 +46,9 @@ class Config:
 
     # --- run
     seed: int = 1
-    """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python."""
+    """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python.
+    A resume, a fine-tune included, continues the checkpoint's generators instead: changing
+    the seed there does not start another sample of the run."""
     threads: int = 2
     """torch intra-op threads, set by the command-line entry point only."""
     total_steps: int = 7_000_000
