@@ -194,13 +194,8 @@ class NStepWindow:
     """
 
     def __init__(self, n: int, gamma: float, num_rows: int, shapes: Mapping[str, tuple[int, ...]]) -> None:
+        """`num_rows` rows (pursuers) of observations with these per-row shapes, nothing pending."""
         self.n, self.gamma = n, gamma
-        self.num_rows = num_rows
-        self.reset_shapes(num_rows, shapes)
-
-    def reset_shapes(self, num_rows: int, shapes: Mapping[str, tuple[int, ...]]) -> None:
-        """Drop everything pending and hold `num_rows` rows of these observation shapes
-        (a new curriculum stage brings new worlds)."""
         self.num_rows = num_rows
         self.states = {
             key: np.zeros((num_rows, self.n) + shape, np.bool_ if key == "mask" else np.float32)

@@ -305,11 +305,10 @@ def _validate(config: Config) -> None:
         raise ConfigError(f"snapshot_preset: unknown preset '{config.snapshot_preset}'")
     if config.device != "cpu" and not config.device.startswith("cuda"):
         raise ConfigError(f"device: must be 'cpu' or 'cuda[:K]', got '{config.device}'")
-    if config.scenario not in PRESETS:
-        raise ConfigError(f"scenario: unknown preset '{config.scenario}'; presets are {', '.join(PRESETS)}")
-    for name in config.mixed_scenarios:
-        if name not in PRESETS:
-            raise ConfigError(f"mixed_scenarios: unknown preset '{name}'; presets are {', '.join(PRESETS)}")
+    for field, names in (("scenario", (config.scenario,)), ("mixed_scenarios", config.mixed_scenarios)):
+        for name in names:
+            if name not in PRESETS:
+                raise ConfigError(f"{field}: unknown preset '{name}'; presets are {', '.join(PRESETS)}")
     if len(set((config.scenario,) + config.mixed_scenarios)) != 1 + len(config.mixed_scenarios):
         raise ConfigError(f"mixed_scenarios: a preset appears twice in {[config.scenario, *config.mixed_scenarios]}")
     positive = (

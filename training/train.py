@@ -108,6 +108,11 @@ def training_scenarios(config: Config, env_step: int) -> list[Scenario]:
     return [scenario.replace(reward=config.reward, max_steps=config.train_max_steps) for scenario in scenarios]
 
 
+def stage_label(scenarios: list[Scenario]) -> str:
+    """What a run trains on at once, as logged: the scenarios' names joined by '+'."""
+    return "+".join(scenario.name for scenario in scenarios)
+
+
 def buffer_evader_slots(scenarios: list[Scenario]) -> int:
     """Evader slots of the replay buffer rows: the most of the scenarios (the others are padded)."""
     return max(scenario.evader_slots for scenario in scenarios)
@@ -519,7 +524,7 @@ def train(
     # --- environments: a group of B worlds per scenario, stepped in turn
     num_envs = config.num_envs
     groups = [WorldGroup(scenario, buffer, config, rng) for scenario in scenarios]
-    stage_name = "+".join(scenario.name for scenario in scenarios)
+    stage_name = stage_label(scenarios)
     if stage_name not in counters.stages:
         counters.stages.append(stage_name)
     recent: deque = deque(maxlen=RECENT_EPISODES)
@@ -531,9 +536,9 @@ def train(
     while counters.env_step < config.total_steps:
         # --- curriculum: a new stage gets new worlds; episodes under way are dropped
         stage = training_scenarios(config, counters.env_step)
-        if [scenario.name for scenario in stage] != [group.scenario.name for group in groups]:
+        if stage_label(stage) != stage_name:
             groups = [WorldGroup(scenario, buffer, config, rng) for scenario in stage]
-            stage_name = "+".join(scenario.name for scenario in stage)
+            stage_name = stage_label(stage)
             if stage_name not in counters.stages:
                 counters.stages.append(stage_name)
             write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
