@@ -16,7 +16,7 @@ import click
 import torch
 
 from training.card import CardError
-from training.checkpoint import STATE_FILE, export_checkpoint, read_config
+from training.checkpoint import STATE_FILE, average_snapshots, export_checkpoint, read_config, read_counters
 from training.config import NETWORK_FIELDS, Config, ConfigError, changed_fields, packaged_configs
 from training.curves import CurvesError
 from training.export import read_metadata
@@ -152,6 +152,23 @@ def export_command(checkpoint: Path, output: Path) -> None:
         f"h={metadata['terl.heads']}, {metadata['terl.training_steps']} training steps on "
         f"{metadata['terl.trained_on']}; torch-onnxruntime parity checked"
     )
+
+
+@cli.command("average")
+@click.argument("snapshots", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="SNAPSHOT_DIR...")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="DIR",
+              help="Folder for the averaged snapshot (export it with `python -m training export DIR`).")
+def average_command(snapshots: tuple[Path, ...], output: Path) -> None:
+    """Average the weights of several snapshots of one network (e.g. a run's kept snapshots,
+    runs/x/snapshots/{425,430,435}000) into one snapshot: stochastic weight averaging, which
+    smooths the step-to-step noise of a fine-tune. It takes the config and counters of the
+    snapshot trained longest; exported, its metadata lists the snapshots averaged."""
+    try:
+        folder = average_snapshots(list(snapshots), output)
+    except (ValueError, FileNotFoundError) as error:
+        raise click.ClickException(str(error)) from error
+    steps = ", ".join(str(read_counters(source).env_step) for source in snapshots)
+    click.echo(f"{folder}: the mean of {len(snapshots)} snapshots (environment steps {steps})")
 
 
 @cli.command("plot")

@@ -7,7 +7,9 @@ A checkpoint is a folder (the run's output folder) holding the last save:
 - state.json: counters and the Python, NumPy and torch RNG states, written last,
   so a folder with a state.json holds a complete checkpoint.
 A snapshot (`save_snapshot`, Config.keep_snapshots) holds the online network, config.json
-and a state.json of counters alone: it exports and evaluates, it does not resume.
+and a state.json of counters alone: it exports and evaluates, it does not resume. An
+averaged snapshot (`average_snapshots`) is one whose weights are the mean of several; its
+state.json also lists them ("averaged_from").
 Nothing here unpickles arbitrary objects.
 """
 
@@ -25,7 +27,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from training.config import Config
+from training.config import NETWORK_FIELDS, Config, changed_fields
 from training.export import export_onnx
 from training.networks import QNetwork, build_network
 
@@ -38,6 +40,8 @@ CONFIG_FILE = "config.json"
 STATE_FILE = "state.json"
 META_TRAINING_CONFIG = "terl.training_config"
 """Metadata key of an exported policy: the training Config as JSON (training's own, not the contract's)."""
+META_AVERAGED_FROM = "terl.averaged_from"
+"""Metadata key of a policy exported from an averaged snapshot: the snapshots averaged, as JSON."""
 
 
 @dataclass
@@ -128,6 +132,40 @@ def save_snapshot(folder: str | Path, config: Config, model: QNetwork, counters:
     return folder
 
 
+def average_snapshots(sources: list[str | Path], folder: str | Path) -> Path:
+    """Write into `folder` a snapshot whose weights are the mean of the sources' online networks.
+
+    The sources (checkpoints or snapshots, at least two) must hold the same network
+    (Config.NETWORK_FIELDS); the result takes the config and counters of the one trained
+    longest. Averaging the weights of nearby snapshots of one run (stochastic weight
+    averaging, Izmailov et al. 2018) smooths the step-to-step noise of a fine-tune.
+    """
+    if len(sources) < 2:
+        raise ValueError(f"averaging needs at least two snapshots, got {len(sources)}")
+    folders = [_checkpoint_folder(source) for source in sources]
+    configs = [read_config(source) for source in folders]
+    for source, config in zip(folders[1:], configs[1:]):
+        differences = changed_fields(configs[0], config, NETWORK_FIELDS)
+        if differences:
+            raise ValueError(
+                f"{source}: another network than {folders[0]} ({', '.join(differences)} differ); "
+                "only snapshots of one network average"
+            )
+    counters = [read_counters(source) for source in folders]
+    latest = max(range(len(folders)), key=lambda index: counters[index].env_step)
+    weights = [load_file(str(source / MODEL_FILE)) for source in folders]
+    mean = {
+        name: (sum(weight[name].double() for weight in weights) / len(weights)).to(tensor.dtype)
+        for name, tensor in weights[0].items()
+    }
+    model = network_from_config(configs[latest])
+    model.load_state_dict(mean)
+    save_snapshot(folder, configs[latest], model, counters[latest])
+    averaged_from = [{"source": str(source), "env_step": count.env_step} for source, count in zip(folders, counters)]
+    _write_state(Path(folder), {**_read_state(Path(folder)), "averaged_from": averaged_from})
+    return Path(folder)
+
+
 def _write_weights(path: Path, network: QNetwork, config: Config, counters: Counters) -> None:
     metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
     state = {key: value.detach().cpu().contiguous() for key, value in network.state_dict().items()}
@@ -211,8 +249,9 @@ def trained_on(stages: list[str]) -> str:
 def export_checkpoint(source: str | Path, output: str | Path) -> Path:
     """Export a checkpoint's online network as a contract-v1 ONNX policy at `output`.
 
-    Adds `terl.training_steps` (environment steps) and `terl.trained_on` to the
-    metadata; `export_onnx` checks parity with torch before returning.
+    Adds `terl.training_steps` (environment steps), `terl.trained_on`, the training config
+    and, for an averaged snapshot, `terl.averaged_from` to the metadata; `export_onnx`
+    checks parity with torch before returning.
     """
     model, config, counters = load_network(source)
     metadata = {
@@ -220,4 +259,7 @@ def export_checkpoint(source: str | Path, output: str | Path) -> Path:
         META_TRAINED_ON: trained_on(counters.stages),
         META_TRAINING_CONFIG: json.dumps(config.to_dict(), sort_keys=True),
     }
+    averaged_from = _read_state(_checkpoint_folder(source)).get("averaged_from")
+    if averaged_from:
+        metadata[META_AVERAGED_FROM] = json.dumps(averaged_from)
     return export_onnx(model, output, metadata)

@@ -79,7 +79,13 @@ class Config:
     gamma: float = 0.99
     """discount factor per decision step (0.5 s), in [0, 1]."""
     learning_rate: float = 1e-4
-    """Adam step size."""
+    """Adam step size (the first, when final_learning_rate is set)."""
+    final_learning_rate: float = 0.0
+    """0: the step size stays learning_rate. > 0: it falls linearly from learning_rate at
+    environment step decay_start to final_learning_rate at total_steps."""
+    decay_start: int = 0
+    """environment step at which the final_learning_rate decay begins (a fine-tune sets the
+    step it resumes from; a resume of the same run then keeps the same schedule)."""
     batch_size: int = 128
     """transitions (pursuer rows) per gradient update."""
     max_grad_norm: float = 0.5
@@ -92,7 +98,13 @@ class Config:
     """environment steps per gradient update: a batch step of B envs runs the
     updates whose multiples of train_frequency it crossed (B/4 on average)."""
     target_network_frequency: int = 10_000
-    """environment steps between hard copies of the online network to the target."""
+    """environment steps between hard copies of the online network to the target (unused
+    when target_tau > 0)."""
+    target_tau: float = 0.0
+    """tau: 0 copies the online network whole into the target every target_network_frequency
+    steps (the published setting); tau in (0, 1] moves the target after every update instead,
+    target <- tau * online + (1 - tau) * target (a soft, Polyak update: it trails the online
+    network by about 1 / tau updates)."""
     start_e: float = 0.6
     """exploration probability at step 0, per pursuer."""
     end_e: float = 0.05
@@ -321,7 +333,7 @@ def _validate(config: Config) -> None:
         if getattr(config, name) < 1:
             raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
     for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps",
-                 "store_pursuers", "snapshot_frequency"):
+                 "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
         if getattr(config, name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
     # A tiny probe tells transformer bodies (which record their layers) from the others.
@@ -333,7 +345,7 @@ def _validate(config: Config) -> None:
                 )
         if config.hidden % config.heads:
             raise ConfigError(f"heads: {config.heads} must divide hidden {config.hidden}")
-    for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout"):
+    for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout", "target_tau"):
         if not 0.0 <= getattr(config, name) <= 1.0:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
     if config.potential_shaping < 0.0:
@@ -343,6 +355,11 @@ def _validate(config: Config) -> None:
     for name in ("learning_rate", "max_grad_norm", "kappa"):
         if not getattr(config, name) > 0.0:
             raise ConfigError(f"{name}: must be > 0, got {getattr(config, name)}")
+    if config.final_learning_rate and config.decay_start >= config.total_steps:
+        raise ConfigError(
+            f"decay_start: {config.decay_start} must come before total_steps {config.total_steps} "
+            "for the step size to fall to final_learning_rate"
+        )
     if config.batch_size > config.buffer_size:
         raise ConfigError(
             f"batch_size: {config.batch_size} exceeds buffer_size {config.buffer_size}"

@@ -12,7 +12,9 @@ environment steps; `Config.total_steps`, `learning_starts`, `train_frequency`,
 `target_network_frequency` and the logging, evaluation and checkpoint intervals
 are all in environment steps. A batch step runs one gradient update per multiple
 of `train_frequency` it crosses, which keeps the published ratio (one update of
-128 rows per 4 environment steps) for any B.
+128 rows per 4 environment steps) for any B. The target network is copied whole every
+`target_network_frequency` steps, or follows the online one softly (`Config.target_tau`);
+the step size may fall linearly to the end of the run (`Config.final_learning_rate`).
 
 Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
 paid as potential differences (`shaped_rewards`), with `Config.collision_value` a collision
@@ -23,7 +25,7 @@ episode terminates if `Config.success_ends_transitions`; truncation is bootstrap
 
 metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
-  episodes, updates, stage, epsilon, loss (mean since the last record), success_rate,
+  episodes, updates, stage, epsilon, learning_rate, loss (mean since the last record), success_rate,
   mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
   same split by reward term), collision_ratio and episode_steps over the last 100
   episodes, steps_per_second (this session),
@@ -290,6 +292,25 @@ def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Confi
     return huber(taken - targets, config.kappa).mean()
 
 
+def learning_rate_at(config: Config, env_step: int) -> float:
+    """Adam's step size at `env_step`: `learning_rate`, or with `final_learning_rate` its linear
+    fall from `decay_start` to `total_steps`."""
+    if not config.final_learning_rate:
+        return config.learning_rate
+    return linear_schedule(
+        config.learning_rate, config.final_learning_rate,
+        config.total_steps - config.decay_start, env_step - config.decay_start,
+    )
+
+
+def soft_update(target: QNetwork, model: QNetwork, tau: float) -> None:
+    """Polyak step of the target network: every weight becomes tau * online + (1 - tau) * target."""
+    with torch.no_grad():
+        for target_weight, online_weight in zip(target.state_dict().values(), model.state_dict().values()):
+            if target_weight.is_floating_point():
+                target_weight.lerp_(online_weight, tau)
+
+
 def build_learner(config: Config) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
     """A fresh online network, its frozen eval-mode target copy and Adam on the online weights."""
     model = network_from_config(config).to(config.device)
@@ -475,8 +496,6 @@ def train(
     counters = Counters()
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
-        for group in optimizer.param_groups:  # the config rules: the saved state carries the old rate
-            group["lr"] = config.learning_rate
         # A fine-tune (a new config on the checkpoint's weights) that evaluates snapshots on other
         # scenarios starts its own best: scores of different evaluations do not compare.
         saved_config = read_config(resume)
@@ -549,6 +568,9 @@ def train(
         epsilon = linear_schedule(
             config.start_e, config.end_e, config.exploration_fraction * config.total_steps, counters.env_step
         )
+        learning_rate = learning_rate_at(config, counters.env_step)
+        for param_group in optimizer.param_groups:  # the config rules, not the rate a resumed optimizer saved
+            param_group["lr"] = learning_rate
         turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
         states = turn.observation.rows(turn.rows).as_inputs()
         step = group.rollout.step(epsilon_greedy(model, states, epsilon, rng))
@@ -568,7 +590,8 @@ def train(
         previous_step = counters.env_step
         counters.env_step += num_envs
 
-        # --- learn: the updates due in this batch step, then the hard target copy
+        # --- learn: the updates due in this batch step, each followed by the soft target
+        # update (target_tau), or the hard target copy after them
         if refill_to and len(buffer) >= refill_to:
             learning_starts, refill_to = max(learning_starts, counters.env_step), 0
         if not refill_to and counters.env_step >= learning_starts and len(buffer) >= config.batch_size:
@@ -579,7 +602,9 @@ def train(
                 last_loss = learn(model, target, optimizer, batch, config)
                 losses.append(last_loss)
                 counters.updates += 1
-            if crossings(previous_step, counters.env_step, config.target_network_frequency):
+                if config.target_tau:
+                    soft_update(target, model, config.target_tau)
+            if not config.target_tau and crossings(previous_step, counters.env_step, config.target_network_frequency):
                 target.load_state_dict(model.state_dict())
 
         # --- evaluate, snapshot and log
@@ -611,6 +636,7 @@ def train(
                 "updates": counters.updates,
                 "stage": stage_name,
                 "epsilon": epsilon,
+                "learning_rate": learning_rate,
                 "loss": float(np.mean(losses)) if losses else None,
                 **recent_means(recent),
                 "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),

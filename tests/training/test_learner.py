@@ -1,5 +1,6 @@
 """The learner's options, each on a tiny case whose answer is known: n-step returns,
-double-DQN targets, a subsampled store, a restored replay buffer, the best-snapshot choice."""
+double-DQN targets, a subsampled store, a restored replay buffer, the best-snapshot choice,
+soft target updates, a falling step size and averaged snapshots."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file
 
 from training.buffer import NStepWindow, ReplayBuffer, pad_evader_slots
 from training.checkpoint import network_from_config
@@ -20,8 +22,8 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.train import (
-    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, shaped_rewards, snapshot_score, subsample_per_group,
-    train,
+    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, learning_rate_at, shaped_rewards,
+    snapshot_score, soft_update, subsample_per_group, train,
 )
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
@@ -386,3 +388,85 @@ def test_a_collision_ends_on_the_collision_value_and_other_steps_are_unchanged()
     assert (stored[-100.0][2:] == stored[0.0][2:]).all()
     with pytest.raises(ConfigError, match="collision_value: must be <= 0"):
         tiny(collision_value=5.0)
+
+
+# ---------------------------------------------------------------- soft target updates
+def test_a_soft_update_moves_every_target_weight_tau_of_the_way():
+    model, target = (network_from_config(tiny()) for _ in range(2))
+    before = {name: weight.clone() for name, weight in target.state_dict().items()}
+    soft_update(target, model, 0.25)
+    for name, weight in target.state_dict().items():
+        expected = before[name] + 0.25 * (model.state_dict()[name] - before[name])
+        assert torch.allclose(weight, expected, atol=1e-7), name
+    soft_update(target, model, 1.0)
+    assert all(torch.equal(w, model.state_dict()[n]) for n, w in target.state_dict().items())
+
+
+def test_a_soft_target_run_never_copies_the_target_whole(tmp_path):
+    run = tmp_path / "soft"
+    train(tiny(target_tau=0.5, total_steps=320), run, show_progress=False)
+    model, target = load_file(run / "model.safetensors"), load_file(run / "target.safetensors")
+    # The last update moved the target halfway: it differs from the online network, which a
+    # copy at step 320 (a multiple of target_network_frequency = 160) would not leave.
+    assert any(not torch.equal(model[name], target[name]) for name in model)
+    with pytest.raises(ConfigError, match=r"target_tau: must lie in \[0, 1\]"):
+        tiny(target_tau=1.5)
+
+
+# ---------------------------------------------------------------- a falling step size
+def test_the_step_size_falls_linearly_from_decay_start_to_the_end():
+    config = tiny(learning_rate=1e-4, final_learning_rate=2e-5, decay_start=200, total_steps=600)
+    assert learning_rate_at(config, 0) == pytest.approx(1e-4)
+    assert learning_rate_at(config, 200) == pytest.approx(1e-4)
+    assert learning_rate_at(config, 400) == pytest.approx(6e-5)
+    assert learning_rate_at(config, 600) == pytest.approx(2e-5)
+    assert learning_rate_at(tiny(learning_rate=1e-4), 400) == 1e-4  # no final rate: constant
+    with pytest.raises(ConfigError, match="decay_start: 600 must come before total_steps 600"):
+        tiny(final_learning_rate=1e-5, decay_start=600, total_steps=600)
+
+
+def test_a_run_logs_and_uses_the_falling_step_size(tmp_path):
+    run = tmp_path / "decay"
+    config = tiny(learning_rate=1e-3, final_learning_rate=1e-4, decay_start=160, total_steps=480)
+    train(config, run, show_progress=False)
+    logged = {r["env_step"]: r["learning_rate"] for r in records(run) if r["kind"] == "train"}
+    assert logged[320] == pytest.approx(learning_rate_at(config, 320 - config.num_envs))
+    assert logged[480] < logged[320] < 1e-3
+    optimizer = torch.load(run / "optimizer.pt", weights_only=True)
+    assert optimizer["param_groups"][0]["lr"] == pytest.approx(logged[480])
+
+
+# ---------------------------------------------------------------- averaged snapshots
+def test_an_averaged_snapshot_holds_the_mean_weights_and_says_what_it_averaged(tmp_path, capsys):
+    from training.__main__ import main
+    from training.checkpoint import Counters, META_AVERAGED_FROM, export_checkpoint, load_network, save_snapshot
+    from training.export import read_metadata
+
+    config = tiny()
+    networks = []
+    for step in (160, 320):
+        torch.manual_seed(step)
+        networks.append(network_from_config(config))
+        save_snapshot(tmp_path / str(step), config, networks[-1], Counters(env_step=step, stages=["curriculum-1"]))
+    assert main(["average", str(tmp_path / "320"), str(tmp_path / "160"), "-o", str(tmp_path / "mean")]) == 0
+    assert "the mean of 2 snapshots (environment steps 320, 160)" in capsys.readouterr().out
+    model, _, counters = load_network(tmp_path / "mean")
+    assert counters.env_step == 320  # the longest-trained snapshot's counters
+    first, second = (network.state_dict() for network in networks)
+    for name, weight in model.state_dict().items():
+        expected = ((first[name].double() + second[name].double()) / 2).float()
+        assert torch.equal(weight, expected), name
+    metadata = read_metadata(export_checkpoint(tmp_path / "mean", tmp_path / "mean.onnx"))
+    assert [entry["env_step"] for entry in json.loads(metadata[META_AVERAGED_FROM])] == [320, 160]
+
+
+def test_averaging_refuses_one_snapshot_and_two_networks(tmp_path, capsys):
+    from training.__main__ import main
+    from training.checkpoint import Counters, save_snapshot
+
+    for name, config in (("small", tiny()), ("wide", tiny(hidden=32))):
+        save_snapshot(tmp_path / name, config, network_from_config(config), Counters(env_step=160))
+    assert main(["average", str(tmp_path / "small"), "-o", str(tmp_path / "mean")]) == 1
+    assert "averaging needs at least two snapshots, got 1" in capsys.readouterr().err
+    assert main(["average", str(tmp_path / "small"), str(tmp_path / "wide"), "-o", str(tmp_path / "mean")]) == 1
+    assert "another network than" in capsys.readouterr().err and not (tmp_path / "mean").exists()
