@@ -171,6 +171,47 @@ def average_command(snapshots: tuple[Path, ...], output: Path) -> None:
     click.echo(f"{folder}: the mean of {len(snapshots)} snapshots (environment steps {steps})")
 
 
+@cli.command("values")
+@click.argument("checkpoints", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="CHECKPOINT_DIR...")
+@click.option("--scenario", "preset", default="small-15", show_default=True, metavar="PRESET",
+              help="Preset the greedy episodes run on.")
+@click.option("--episodes", type=click.IntRange(min=1), default=4, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the first world (one per episode).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object per checkpoint instead.")
+def values_command(checkpoints: tuple[Path, ...], preset: str, episodes: int, seed: int, as_json: bool) -> None:
+    """Compare each network's Q-values with the returns that follow them: greedy episodes, every
+    pursuer-step's Q(s, a) against the discounted return of the rewards the network was taught
+    (its config's shaping and collision value). Q far above the returns, or uncorrelated with
+    them, is a value function that has not caught up with its reward."""
+    from dataclasses import asdict
+
+    from terl_rt.sim.scenario import Scenario, ScenarioError
+    from training.checkpoint import load_network
+    from training.values import value_check
+
+    try:
+        scenario = Scenario.preset(preset)
+    except ScenarioError as error:
+        raise click.BadParameter(str(error), param_hint="--scenario") from error
+    if not as_json:
+        click.echo("| checkpoint | pursuer-steps | Q(s, a) | return | Q - return: mean | median | correlation |")
+        click.echo("|---|---:|---:|---:|---:|---:|---:|")
+    for source in checkpoints:
+        try:
+            model, config, _ = load_network(source)
+        except (FileNotFoundError, ValueError) as error:
+            raise click.ClickException(str(error)) from error
+        check = value_check(model, config, scenario.replace(max_steps=config.eval_max_steps), episodes, seed)
+        if as_json:
+            click.echo(json.dumps({"checkpoint": str(source), **asdict(check)}))
+        else:
+            correlation = "-" if check.correlation is None else f"{check.correlation:.2f}"
+            click.echo(
+                f"| {source} | {check.pursuer_steps:,} | {check.q_mean:.1f} | {check.return_mean:.1f} | "
+                f"{check.gap_mean:.1f} | {check.gap_median:.1f} | {correlation} |"
+            )
+
+
 @cli.command("plot")
 @click.argument("run", type=click.Path(path_type=Path), metavar="RUN_DIR")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="FILE.png")

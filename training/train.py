@@ -180,30 +180,14 @@ class TransitionStore:
         actions [B, N]); returns the transitions stored. Observations with fewer evader slots
         than the buffer's are padded to them (`pad_evader_slots`).
 
-        Terminal: the pursuer collided, or its episode terminated (all evaders encircled,
-        or too few pursuers left) when Config.success_ends_transitions. Truncated
-        episodes, and terminated ones otherwise, are bootstrapped.
+        Rewards and terminal flags come from `taught_rewards`.
         """
         num_pursuers = result.collided.shape[1]
         slots = self.buffer.shapes["evaders"][0]
         states = pad_evader_slots(states, slots)
         next_states = pad_evader_slots(next_observation.rows(rows).as_inputs(), slots)
-        ended = (result.terminated | result.truncated)[:, None]
-        terminal = result.collided | (result.terminated[:, None] if self.config.success_ends_transitions else False)
-        stops = np.broadcast_to(ended, terminal.shape)
-        rewards = result.reward.ravel()[rows]
-        if self.config.potential_shaping:
-            rewards, potential = shaped_rewards(
-                result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows], terminal.ravel()[rows],
-                self.potential[rows], self.config.gamma, self.config.potential_shaping,
-            )
-            self.potential[rows] = np.where((terminal | stops).ravel()[rows], 0.0, potential)
-        if self.config.collision_value:
-            rewards = rewards + np.where(result.collided.ravel()[rows], self.config.gamma * self.config.collision_value, 0.0)
-        sources, done = self.window.push(
-            rows, states, actions.ravel()[rows], rewards,
-            next_states, terminal.ravel()[rows], stops.ravel()[rows],
-        )
+        rewards, terminal, stops = taught_rewards(result, rows, self.potential, self.config)
+        sources, done = self.window.push(rows, states, actions.ravel()[rows], rewards, next_states, terminal, stops)
         keep = np.arange(len(sources))
         if self.config.store_pursuers:
             # at most store_pursuers transitions per world of this step, drawn at random
@@ -213,6 +197,34 @@ class TransitionStore:
             {key: value[keep] for key, value in done.next_observations.items()}, done.dones[keep], done.discounts[keep],
         )
         return len(keep)
+
+
+def taught_rewards(
+    result: StepResult, rows: np.ndarray, potential: np.ndarray, config: Config
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the learner is taught about one step of the pursuer rows [R] (b * N + n) that acted.
+
+    Returns their rewards [R] (income shaped by Config.potential_shaping, a collision ending
+    on Config.collision_value), whether each transition is terminal [R] (the pursuer collided,
+    or its episode terminated (all evaders encircled, or too few pursuers left) when
+    Config.success_ends_transitions; truncated episodes, and terminated ones otherwise, are
+    bootstrapped) and whether each row's episode stops here [R] (terminated or truncated).
+    potential [B * N]: Phi of the state each row's last step ended in, updated in place.
+    """
+    ended = (result.terminated | result.truncated)[:, None]
+    terminal = result.collided | (result.terminated[:, None] if config.success_ends_transitions else False)
+    stops = np.broadcast_to(ended, terminal.shape).ravel()[rows]
+    terminal = terminal.ravel()[rows]
+    rewards = result.reward.ravel()[rows]
+    if config.potential_shaping:
+        rewards, next_potential = shaped_rewards(
+            result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows], terminal,
+            potential[rows], config.gamma, config.potential_shaping,
+        )
+        potential[rows] = np.where(terminal | stops, 0.0, next_potential)
+    if config.collision_value:
+        rewards = rewards + np.where(result.collided.ravel()[rows], config.gamma * config.collision_value, 0.0)
+    return rewards, terminal, stops
 
 
 class WorldGroup:

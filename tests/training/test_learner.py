@@ -470,3 +470,43 @@ def test_averaging_refuses_one_snapshot_and_two_networks(tmp_path, capsys):
     assert "averaging needs at least two snapshots, got 1" in capsys.readouterr().err
     assert main(["average", str(tmp_path / "small"), str(tmp_path / "wide"), "-o", str(tmp_path / "mean")]) == 1
     assert "another network than" in capsys.readouterr().err and not (tmp_path / "mean").exists()
+
+
+# ---------------------------------------------------------------- Q-values against returns
+class ConstantQ(torch.nn.Module):
+    """Q = 7 for every action: the greedy action is 0, the gap to the returns is 7 - return."""
+
+    def q_values(self, ego, teammates, evaders, obstacles, mask):
+        return torch.full((len(ego), 9), 7.0)
+
+
+def test_value_check_compares_q_with_the_discounted_return_that_follows():
+    from training.values import value_check
+
+    scenario = Scenario.preset("small-11").replace(max_steps=3)
+    check = value_check(ConstantQ(), tiny(gamma=0.5), scenario, episodes=1, seed=3)
+    rollout, rewards = Rollout(World(scenario, 1, seed=3)), []
+    for _ in range(3):  # the same episode, stepped by hand: no pursuer collides in it
+        turn = rollout.turn()
+        step = rollout.step(np.zeros(len(turn.rows), np.int64))
+        assert not step.result.collided.any()
+        rewards.append(step.result.reward[0])
+    r0, r1, r2 = rewards  # [N] each; the episode is cut after 3 steps, so the returns end there
+    returns = np.concatenate([r0 + 0.5 * r1 + 0.25 * r2, r1 + 0.5 * r2, r2])
+    assert check.pursuer_steps == 3 * scenario.pursuers
+    assert check.q_mean == 7.0
+    assert check.return_mean == pytest.approx(returns.mean())
+    assert check.gap_mean == pytest.approx(7.0 - returns.mean())
+    assert check.correlation is None  # a constant Q correlates with nothing
+
+
+def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp_path, capsys):
+    from training.__main__ import main
+    from training.checkpoint import Counters, save_snapshot
+
+    save_snapshot(tmp_path / "net", tiny(), network_from_config(tiny()), Counters(env_step=160))
+    assert main(["values", str(tmp_path / "net"), "--scenario", "small-11", "--episodes", "1", "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)
+    assert row["scenario"] == "small-11" and row["pursuer_steps"] > 0 and row["checkpoint"] == str(tmp_path / "net")
+    assert main(["values", str(tmp_path / "net"), "--scenario", "huge-500"]) == 2
+    assert "unknown scenario 'huge-500'" in capsys.readouterr().err

@@ -1,0 +1,82 @@
+"""How well a network's Q-values predict the returns that follow them.
+
+Greedy episodes of one scenario: at every step of every active pursuer, the network's
+Q-value of the action it takes against the discounted return that follows, of the rewards
+the learner is taught under the network's own config (`training.train.taught_rewards`:
+shaping, collision value, what ends a transition). A Q-value far above the returns that
+follow, or uncorrelated with them, is a value function that has not caught up with its
+reward: a hard target copy allows one Bellman backup per `target_network_frequency` steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import World
+from training.config import Config
+from training.networks import QNetwork
+from training.train import as_tensors, taught_rewards
+
+
+@dataclass(frozen=True)
+class ValueCheck:
+    """Q-values against the returns that follow, over every pursuer-step of the episodes."""
+
+    scenario: str
+    episodes: int
+    pursuer_steps: int
+    q_mean: float
+    """mean Q(s, a) of the actions taken, in return units."""
+    return_mean: float
+    """mean discounted return that followed them (episodes cut at the step limit end there)."""
+    gap_mean: float
+    """mean of Q(s, a) minus the return: > 0 overestimates."""
+    gap_median: float
+    correlation: float | None
+    """Pearson correlation of Q(s, a) and the return over the pursuer-steps (None when either is constant)."""
+
+
+def value_check(model: QNetwork, config: Config, scenario: Scenario, episodes: int, seed: int) -> ValueCheck:
+    """Run `episodes` greedy episodes of `scenario` as one batch (worlds seeded from `seed`, each
+    kept to its first episode) and compare each pursuer-step's Q(s, a) with its return."""
+    rollout = Rollout(World(scenario, num_envs=episodes, seed=seed))
+    num_pursuers = scenario.pursuers
+    potential = np.zeros(episodes * num_pursuers)
+    ended = np.zeros(episodes, bool)
+    steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # rows, Q(s, a), reward, terminal
+    model.eval()
+    while not ended.all():
+        turn = rollout.turn()
+        with torch.inference_mode():
+            q_values = model.q_values(*as_tensors(turn.observation.rows(turn.rows).as_inputs())).numpy()
+        actions = q_values.argmax(axis=1)
+        step = rollout.step(actions)
+        first = ~ended[turn.rows // num_pursuers]  # rows of worlds still in their first episode
+        rows = turn.rows[first]
+        rewards, terminal, _ = taught_rewards(step.result, rows, potential, config)
+        steps.append((rows, q_values[first, actions[first]], rewards, terminal))
+        ended |= step.result.terminated | step.result.truncated
+    following = np.zeros(episodes * num_pursuers)
+    """[B * N] the discounted return from each row's next step on, built backwards."""
+    q_taken, returns = [], []
+    for rows, q, rewards, terminal in reversed(steps):
+        following[rows] = rewards + config.gamma * np.where(terminal, 0.0, following[rows])
+        q_taken.append(q)
+        returns.append(following[rows].copy())
+    q_all, return_all = np.concatenate(q_taken), np.concatenate(returns)
+    gaps = q_all - return_all
+    return ValueCheck(
+        scenario=scenario.name,
+        episodes=episodes,
+        pursuer_steps=len(q_all),
+        q_mean=float(q_all.mean()),
+        return_mean=float(return_all.mean()),
+        gap_mean=float(gaps.mean()),
+        gap_median=float(np.median(gaps)),
+        correlation=float(np.corrcoef(q_all, return_all)[0, 1]) if q_all.std() and return_all.std() else None,
+    )
