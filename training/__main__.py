@@ -16,7 +16,9 @@ import click
 import torch
 
 from training.card import CardError
-from training.checkpoint import STATE_FILE, average_snapshots, export_checkpoint, read_config, read_counters
+from training.checkpoint import (
+    STATE_FILE, average_snapshots, export_checkpoint, read_config, read_counters, shift_values,
+)
 from training.config import NETWORK_FIELDS, Config, ConfigError, changed_fields, packaged_configs
 from training.curves import CurvesError
 from training.export import read_metadata
@@ -169,6 +171,26 @@ def average_command(snapshots: tuple[Path, ...], output: Path) -> None:
         raise click.ClickException(str(error)) from error
     steps = ", ".join(str(read_counters(source).env_step) for source in snapshots)
     click.echo(f"{folder}: the mean of {len(snapshots)} snapshots (environment steps {steps})")
+
+
+@cli.command("shift")
+@click.argument("checkpoint", type=click.Path(path_type=Path), metavar="CHECKPOINT_DIR")
+@click.option("--by", "offset", type=float, required=True, metavar="RETURN",
+              help="Added to every Q-value (return units; e.g. -300).")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="DIR",
+              help="Folder for the shifted checkpoint (resume from it with --resume DIR --config ...).")
+def shift_command(checkpoint: Path, offset: float, output: Path) -> None:
+    """Copy a checkpoint with every Q-value of its online and target networks moved by RETURN
+    (the output layer's bias): the greedy policy is unchanged, and a fine-tune whose returns lie
+    far from the network's values (see `values`) starts near them instead of closing the gap one
+    Bellman backup per target copy. The replay buffer is not copied."""
+    if output.exists() and any(output.iterdir()):
+        raise click.ClickException(f"{output}: not empty; choose a new folder for the shifted checkpoint")
+    try:
+        folder = shift_values(checkpoint, output, offset)
+    except (ValueError, FileNotFoundError) as error:
+        raise click.ClickException(str(error)) from error
+    click.echo(f"{folder}: {checkpoint} with every Q-value moved by {offset:+g}")
 
 
 @cli.command("values")

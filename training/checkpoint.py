@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
@@ -164,6 +165,40 @@ def average_snapshots(sources: list[str | Path], folder: str | Path) -> Path:
     averaged_from = [{"source": str(source), "env_step": count.env_step} for source, count in zip(folders, counters)]
     _write_state(Path(folder), {**_read_state(Path(folder)), "averaged_from": averaged_from})
     return Path(folder)
+
+
+VALUE_BIAS = "head.out.bias"
+"""The output layer's bias of every network of training.networks: one entry per action, added to
+every quantile of that action."""
+
+
+def shift_values(source: str | Path, folder: str | Path, offset: float) -> Path:
+    """Copy the checkpoint at `source` into `folder` with every Q-value of its online and target
+    networks moved by `offset` (the output layer's bias; the optimizer state, counters, RNG
+    states and config are kept, the replay buffer is not copied).
+
+    Every action of every state moves alike, so the greedy policy is unchanged; a fine-tune under
+    a reward whose returns lie far from the network's values (`python -m training values`) then
+    starts near them instead of closing the gap one Bellman backup per target copy.
+    """
+    source = _checkpoint_folder(source)
+    state = _read_state(source)
+    if "rng" not in state:
+        raise ValueError(f"{source}: a snapshot (no target network, optimizer or RNG states); shift a whole checkpoint")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in (MODEL_FILE, TARGET_FILE):
+        weights = load_file(str(source / name))
+        if VALUE_BIAS not in weights:
+            raise ValueError(f"{source / name}: no {VALUE_BIAS} (not a network of training.networks)")
+        weights[VALUE_BIAS] = weights[VALUE_BIAS] + offset
+        with safe_open(str(source / name), framework="pt") as file:
+            metadata = file.metadata()
+        _replace_file(folder / name, lambda path: save_file(weights, str(path), metadata=metadata))
+    for name in (OPTIMIZER_FILE, CONFIG_FILE):
+        _replace_file(folder / name, lambda path: path.write_bytes((source / name).read_bytes()))
+    _write_state(folder, {**state, "shifted_values_by": state.get("shifted_values_by", 0.0) + offset})
+    return folder
 
 
 def _write_weights(path: Path, network: QNetwork, config: Config, counters: Counters) -> None:

@@ -510,3 +510,26 @@ def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp
     assert row["scenario"] == "small-11" and row["pursuer_steps"] > 0 and row["checkpoint"] == str(tmp_path / "net")
     assert main(["values", str(tmp_path / "net"), "--scenario", "huge-500"]) == 2
     assert "unknown scenario 'huge-500'" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- shifted values
+def test_a_shifted_checkpoint_moves_every_q_value_and_keeps_the_policy(tmp_path, capsys):
+    from training.__main__ import main
+    from training.checkpoint import load_network
+
+    run = tmp_path / "run"
+    train(tiny(total_steps=240), run, show_progress=False)
+    assert main(["shift", str(run), "--by", "-300", "-o", str(tmp_path / "shifted")]) == 0
+    assert "moved by -300" in capsys.readouterr().out
+    inputs = Rollout(World(Scenario.preset("small-11"), 1, seed=2)).turn().observation.rows(np.arange(11)).as_inputs()
+    (before, _, counters), (after, _, shifted_counters) = load_network(run), load_network(tmp_path / "shifted")
+    with torch.no_grad():
+        q_before, q_after = (network.q_values(*(torch.from_numpy(inputs[key]) for key in INPUT_NAMES)) for network in (before, after))
+    assert torch.allclose(q_after, q_before - 300.0, atol=1e-3)
+    assert torch.equal(q_after.argmax(1), q_before.argmax(1)) and shifted_counters == counters
+    target_before, target_after = load_file(run / "target.safetensors"), load_file(tmp_path / "shifted" / "target.safetensors")
+    assert torch.allclose(target_after["head.out.bias"], target_before["head.out.bias"] - 300.0)
+    # it resumes: a fine-tune from the shifted checkpoint continues its counters
+    assert fine_tune(tmp_path / "shifted", tmp_path / "tuned", tiny(total_steps=320), tmp_path) == 0
+    assert main(["shift", str(run), "--by", "5", "-o", str(tmp_path / "shifted")]) == 1
+    assert "not empty" in capsys.readouterr().err
