@@ -139,9 +139,11 @@ class Config:
     """V_c: the value a collided pursuer's (terminal) transition ends on, in return units: its
     stored return gains gamma * V_c in the step it collides (0: nothing, the published setting).
     Under either reward variant a collision ends a pursuer's time, emergency and crowding
-    penalties, so in a crowded endgame the -80 of a collision costs little more than staying;
-    V_c = -100 = -1 / (1 - gamma) charges the dead pursuer the time term for ever, so a
-    collision never pays."""
+    penalties, so in a crowded endgame the -80 of a collision costs little more than staying.
+    V_c = -100 = -1 / (1 - gamma) charges the dead pursuer the time term for ever; a collision
+    still pays wherever a living pursuer expects less than V_c (crowds of 48-80 pursuers and
+    the first curriculum stages, at about -3 a step, return about -300: docs/training.md),
+    so V_c must lie below the returns of the run's worlds."""
     store_pursuers: int = 0
     """pursuer transitions of each world step that enter the replay buffer, a random subset
     of the pursuers that acted (0: all of them, the published setting)."""
