@@ -47,8 +47,10 @@ class Config:
     # --- run
     seed: int = 1
     """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python.
-    A resume, a fine-tune included, continues the checkpoint's generators instead: changing
-    the seed there does not start another sample of the run."""
+    A resume, a fine-tune included, continues the checkpoint's CPU generators instead: on the
+    CPU, changing the seed there does not start another sample of the run. The CUDA generator
+    (the quantile fractions of updates on a GPU) is not saved and is seeded anew, so on a GPU
+    it does."""
     threads: int = 2
     """torch intra-op threads, set by the command-line entry point only."""
     total_steps: int = 7_000_000
