@@ -29,11 +29,7 @@ wait
     for log in "$work"/G*.log; do echo "== $log"; tail -n 5 "$log"; done
     for run in "$work"/runs/G*; do
         echo "== $(basename "$run")"
-        grep '"snapshot"' "$run/metrics.jsonl" | $python -c '
-import json, sys
-for line in sys.stdin:
-    r = json.loads(line)
-    print(r["env_step"], round(r["score"], 3), [(e["scenario"], e["success_rate"], e["travel_time_s_mean"], round(e["collision_ratio_mean"], 3)) for e in r["evaluations"]])'
+        $python -m training snapshots "$run"
         tail -n 1 "$run/metrics.jsonl" | cut -c1-300
     done
 } >"$out/summary.txt" 2>&1
