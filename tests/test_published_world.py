@@ -220,9 +220,9 @@ def published(state, collided=None, obstacle_before=None) -> dict[str, np.ndarra
         obstacle_before = first_perceived_obstacle_distance(geometry, state.obstacle_r, DEFAULT)
     remember_perceived(state, geometry, DEFAULT, recipients)
     ring_ = encircle(state, geometry, DEFAULT, recipients)
-    out = published_reward_terms(state.pursuer_xy, recipients, collided, obstacle_before, geometry, ring_,
-                                 DEFAULT, ARENA)
-    return {name: out[0, :, i] for i, name in enumerate(REWARD_TERMS)}
+    out, team = published_reward_terms(state.pursuer_xy, recipients, collided, obstacle_before, geometry, ring_,
+                                       DEFAULT, ARENA)
+    return {**{name: out[0, :, i] for i, name in enumerate(REWARD_TERMS)}, "team": float(team[0])}
 
 
 def test_reward_variant_is_chosen_by_name_in_the_scenario():
@@ -257,9 +257,10 @@ def test_published_guidance_beyond_d_encircle_grows_when_the_nearest_evader_is_c
 def test_published_cooperation_by_pursuers_within_18_m(count, each):
     # P pursuers 15 m around E; one pursuer far away gets only the crowding penalty (P >= 5)
     pursuers = ring([50.0, 50.0], 15.0, [60 * k for k in range(count)]) + [[5.0, 5.0, 0, 0]]
-    got = published(make_state(pursuers, [[50.0, 50.0, 0, 0]]))["cooperation"]
-    assert got[:count] == pytest.approx([each] * count)
-    assert got[count] == pytest.approx(-10.0 if count >= 5 else 0.0)
+    got = published(make_state(pursuers, [[50.0, 50.0, 0, 0]]))
+    assert got["cooperation"][:count] == pytest.approx([each] * count)
+    assert got["cooperation"][count] == pytest.approx(-10.0 if count >= 5 else 0.0)
+    assert got["team"] == (-10.0 if count >= 5 else 0.0)  # the share every pursuer gets alike
 
 
 def test_published_cooperation_counts_collided_pursuers_and_encircled_evaders():

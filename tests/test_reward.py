@@ -25,11 +25,11 @@ def terms(state, collided=None, recipients=None) -> dict[str, np.ndarray]:
     recipients = state.pursuer_active | collided if recipients is None else np.array([recipients], bool)
     geometry = geometry_of(state)
     remember_perceived(state, geometry, DEFAULT, state.pursuer_active)
-    out = paper_reward_terms(
+    out, team = paper_reward_terms(
         state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
         state.obstacle_r, geometry, encircle(state, geometry, DEFAULT, state.pursuer_active), DEFAULT, ARENA,
     )
-    return {name: out[0, :, i] for i, name in enumerate(REWARD_TERMS)}
+    return {**{name: out[0, :, i] for i, name in enumerate(REWARD_TERMS)}, "team": float(team[0])}
 
 
 def test_reward_terms_are_named_in_order():
@@ -152,13 +152,17 @@ def test_imbalance_penalises_every_pursuer():
     # A's six also get the crowding -10.
     far = [[10.0, 90.0, 0.0, 0.0]]
     state = make_state(around(6, extra=far), [EVADER, [90.0, 10.0, 0.0, 0.0]])
-    assert terms(state)["cooperation"].tolist() == pytest.approx([-20.0] * 6 + [-10.0])
+    got = terms(state)
+    assert got["cooperation"].tolist() == pytest.approx([-20.0] * 6 + [-10.0])
+    assert got["team"] == -10.0  # the imbalance: the share every pursuer gets alike
 
 
 def test_no_imbalance_when_the_crowd_is_exactly_five():
     far = [[10.0, 90.0, 0.0, 0.0]]
     state = make_state(around(5, extra=far), [EVADER, [90.0, 10.0, 0.0, 0.0]])
-    assert terms(state)["cooperation"].tolist() == pytest.approx([-10.0] * 5 + [0.0])
+    got = terms(state)
+    assert got["cooperation"].tolist() == pytest.approx([-10.0] * 5 + [0.0])
+    assert got["team"] == 0.0  # the crowd's -10 is its own, not the team's
 
 
 def test_encircled_evader_causes_no_imbalance():
@@ -278,7 +282,7 @@ def test_reward_terms_match_plain_loop_on_random_worlds(seed):
     geometry = geometry_of(state)
     remember_perceived(state, geometry, DEFAULT, recipients)
     ring_ = encircle(state, geometry, DEFAULT, recipients)
-    got = paper_reward_terms(state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
+    got, _ = paper_reward_terms(state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
                        state.obstacle_r, geometry, ring_, DEFAULT, (20.0, 20.0))
     expected = reference_terms(state, recipients, collided, ring_.ring_size, ring_.gap_std, DEFAULT, (20.0, 20.0))
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)

@@ -194,8 +194,10 @@ def test_stored_transition_is_done_when_the_pursuer_collided_and_truncation_boot
         mask=np.ones((2, 3, 19), bool), pursuer_index=np.zeros((2, 3), np.int64),
     )
     acted = np.array([[True, True, False], [True, True, True]])
+    terms = np.zeros((2, 3, 7))
+    terms[..., 0] = np.arange(6.0).reshape(2, 3)  # the rewards 0..5, all in the time term
     result = StepResult(
-        reward=np.arange(6.0).reshape(2, 3), reward_terms=np.zeros((2, 3, 7)), acted=acted,
+        reward=terms.sum(-1), reward_terms=terms, team_cooperation=np.zeros(2), acted=acted,
         collided=np.array([[False, True, False], [False, False, False]]),
         captured=np.zeros((2, 1), bool), pursuer_target=np.full((2, 3), -1),
         evader_actions=np.zeros((2, 1), np.int64), terminated=np.array([False, False]),
@@ -317,13 +319,14 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
 
 def test_recent_means_split_the_return_by_reward_term():
     # Two episodes: returns 10 and -20 per pursuer, split over the 7 terms.
-    first, second = np.array([-5.0, 0, 0, 15.0, 0, 0, 0]), np.array([-10.0, -80.0, 0, 70.0, 0, 0, 0])
-    recent = deque([(True, 10.0, 0.0, 5, first), (False, -20.0, 0.5, 10, second)])
+    first, second = np.array([-5.0, 0, 0, 15.0, 0, 0, 0]), np.array([-10.0, -80.0, 0, 80.0, -10.0, 0, 0])
+    recent = deque([(True, 10.0, 0.0, 5, first, 0.0), (False, -20.0, 0.5, 10, second, -10.0)])
     means = recent_means(recent)
     assert means["mean_return"] == -5.0 and means["success_rate"] == 0.5 and means["episode_steps"] == 7.5
     assert list(means["return_terms"]) == list(REWARD_TERMS)
     assert means["return_terms"]["time"] == -7.5 and means["return_terms"]["collision"] == -40.0
     assert sum(means["return_terms"].values()) == pytest.approx(means["mean_return"])
+    assert means["team_cooperation"] == -5.0  # a share of the cooperation term, not a term of its own
     assert recent_means(deque())["return_terms"] is None
 
 

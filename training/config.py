@@ -146,6 +146,20 @@ class Config:
     still pays wherever a living pursuer expects less than V_c (crowds of 48-80 pursuers and
     the first curriculum stages, at about -3 a step, return about -300: docs/training.md),
     so V_c must lie below the returns of the run's worlds."""
+    emergency_weight: float = 1.0
+    """w_e: the emergency term (world.md section 9: -5 a step while closer than d_safe = 4 m to
+    an active teammate, active evader or perceived obstacle) is taught times w_e (1: as the
+    variant pays it). Nine collisions in ten are two pursuers touching in the crowd at a ring
+    (docs/training.md), where the emergency term is the only price of closing in that a
+    pursuer pays before touching; w_e > 1 raises that price and changes what is optimal,
+    unlike potential_shaping."""
+    team_penalty_weight: float = 1.0
+    """w_t: the team-wide share of the cooperation term (`paper`: the imbalance penalty, -10 to
+    every pursuer while one evader has fewer than 3 pursuers near and another more than 5;
+    `published`: -10 to every pursuer while any evader has 5 or more) is taught times w_t (1: as
+    the variant pays it). That share depends on pursuers a pursuer cannot see, and in teams of
+    48-80 it holds the returns near -300, below the value a collision ends on; w_t < 1 teaches
+    less of it and changes what is optimal, unlike potential_shaping."""
     store_pursuers: int = 0
     """pursuer transitions of each world step that enter the replay buffer, a random subset
     of the pursuers that acted (0: all of them, the published setting)."""
@@ -247,7 +261,10 @@ class Config:
 NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
 """Fields that fix the network's weights: a checkpoint continues only under the same values."""
 
-RETURN_FIELDS = ("reward", "potential_shaping", "collision_value", "gamma", "n_step", "success_ends_transitions")
+RETURN_FIELDS = (
+    "reward", "potential_shaping", "collision_value", "emergency_weight", "team_penalty_weight", "gamma", "n_step",
+    "success_ends_transitions",
+)
 """Fields that fix what a stored transition holds (its return, discount and done): a saved
 replay buffer is reused only under the same values."""
 
@@ -354,6 +371,10 @@ def _validate(config: Config) -> None:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
     if config.potential_shaping < 0.0:
         raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
+    if config.team_penalty_weight < 0.0:
+        raise ConfigError(f"team_penalty_weight: must be >= 0 (a penalty is never paid), got {config.team_penalty_weight}")
+    if config.emergency_weight < 0.0:
+        raise ConfigError(f"emergency_weight: must be >= 0 (an emergency is never paid), got {config.emergency_weight}")
     if config.collision_value > 0.0:
         raise ConfigError(f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {config.collision_value}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):

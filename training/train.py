@@ -17,8 +17,10 @@ of `train_frequency` it crosses, which keeps the published ratio (one update of
 the step size may fall linearly to the end of the run (`Config.final_learning_rate`).
 
 Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
-paid as potential differences (`shaped_rewards`), with `Config.collision_value` a collision
-ends on that value instead of 0; each pursuer's step then goes through an n-step window (`Config.n_step`) and,
+paid as potential differences (`shaped_rewards`), the emergency term is taught times
+`Config.emergency_weight` and the team-wide crowding penalty times `Config.team_penalty_weight`,
+with `Config.collision_value` a collision ends on that value
+instead of 0; each pursuer's step then goes through an n-step window (`Config.n_step`) and,
 when `Config.store_pursuers` is set, only a random subset of a world step's pursuers
 enter the buffer. A pursuer's transition is terminal when it collides, and when its
 episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
@@ -27,7 +29,8 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
   episodes, updates, stage, epsilon, learning_rate, loss (mean since the last record), success_rate,
   mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
-  same split by reward term), collision_ratio and episode_steps over the last 100
+  same split by reward term), team_cooperation (the team-wide share of return_terms'
+  cooperation, paid to every pursuer alike: `Config.team_penalty_weight`), collision_ratio and episode_steps over the last 100
   episodes, steps_per_second (this session),
   wall_seconds (all sessions), eval (the `greedy_evaluation` dict, or null);
 - "stage": env_step and the curriculum stage that starts there;
@@ -199,29 +202,44 @@ class TransitionStore:
         return len(keep)
 
 
+_GUIDANCE, _COOPERATION = REWARD_TERMS.index("guidance"), REWARD_TERMS.index("cooperation")
+_EMERGENCY = REWARD_TERMS.index("emergency")
+
+
+def taught_terms(result: StepResult, rows: np.ndarray, config: Config) -> np.ndarray:
+    """The reward terms [R, len(REWARD_TERMS)] of the pursuer rows [R] (b * N + n) as the
+    learner is taught them: the emergency term times Config.emergency_weight, and the
+    cooperation term with its team-wide share (StepResult.team_cooperation) times
+    Config.team_penalty_weight; the others as the world paid them."""
+    terms = result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows]
+    terms[:, _EMERGENCY] *= config.emergency_weight
+    terms[:, _COOPERATION] += (config.team_penalty_weight - 1.0) * result.team_cooperation[rows // result.reward.shape[1]]
+    return terms
+
+
 def taught_rewards(
     result: StepResult, rows: np.ndarray, potential: np.ndarray, config: Config
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the learner is taught about one step of the pursuer rows [R] (b * N + n) that acted.
 
-    Returns their rewards [R] (income shaped by Config.potential_shaping, a collision ending
-    on Config.collision_value), whether each transition is terminal [R] (the pursuer collided,
-    or its episode terminated (all evaders encircled, or too few pursuers left) when
-    Config.success_ends_transitions; truncated episodes, and terminated ones otherwise, are
-    bootstrapped) and whether each row's episode stops here [R] (terminated or truncated).
+    Returns their rewards [R] (the `taught_terms` summed, their income shaped by
+    Config.potential_shaping, a collision ending on Config.collision_value), whether each
+    transition is terminal [R] (the pursuer collided, or its episode terminated (all evaders
+    encircled, or too few pursuers left) when Config.success_ends_transitions; truncated
+    episodes, and terminated ones otherwise, are bootstrapped) and whether each row's episode
+    stops here [R] (terminated or truncated).
     potential [B * N]: Phi of the state each row's last step ended in, updated in place.
     """
     ended = (result.terminated | result.truncated)[:, None]
     terminal = result.collided | (result.terminated[:, None] if config.success_ends_transitions else False)
     stops = np.broadcast_to(ended, terminal.shape).ravel()[rows]
     terminal = terminal.ravel()[rows]
-    rewards = result.reward.ravel()[rows]
+    terms = taught_terms(result, rows, config)
     if config.potential_shaping:
-        rewards, next_potential = shaped_rewards(
-            result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows], terminal,
-            potential[rows], config.gamma, config.potential_shaping,
-        )
+        rewards, next_potential = shaped_rewards(terms, terminal, potential[rows], config.gamma, config.potential_shaping)
         potential[rows] = np.where(terminal | stops, 0.0, next_potential)
+    else:
+        rewards = terms.sum(-1)
     if config.collision_value:
         rewards = rewards + np.where(result.collided.ravel()[rows], config.gamma * config.collision_value, 0.0)
     return rewards, terminal, stops
@@ -239,9 +257,9 @@ class WorldGroup:
         """[B] per-pursuer return of each world's episode so far (summed rewards / N)."""
         self.terms = np.zeros((config.num_envs, len(REWARD_TERMS)))
         """[B, terms] the same split by reward term."""
+        self.team = np.zeros(config.num_envs)
+        """[B] the team-wide share of the cooperation term in it (StepResult.team_cooperation)."""
 
-
-_GUIDANCE, _COOPERATION = REWARD_TERMS.index("guidance"), REWARD_TERMS.index("cooperation")
 
 
 def shaped_rewards(
@@ -459,17 +477,18 @@ def write_record(path: Path, record: dict[str, Any]) -> None:
 
 def recent_means(recent: deque) -> dict[str, float | dict[str, float] | None]:
     """Means over the recent episodes, each (success, return, collision ratio, steps,
-    return by term [7]); None when there are none yet."""
+    return by term [7], the team-wide share of its cooperation term); None when there are none yet."""
     if not recent:
         return {
-            "success_rate": None, "mean_return": None, "return_terms": None,
+            "success_rate": None, "mean_return": None, "return_terms": None, "team_cooperation": None,
             "collision_ratio": None, "episode_steps": None,
         }
-    success, returns, collisions, steps, terms = zip(*recent)
+    success, returns, collisions, steps, terms, team = zip(*recent)
     return {
         "success_rate": float(np.mean(success)),
         "mean_return": float(np.mean(returns)),
         "return_terms": dict(zip(REWARD_TERMS, np.mean(terms, axis=0).tolist())),
+        "team_cooperation": float(np.mean(team)),
         "collision_ratio": float(np.mean(collisions)),
         "episode_steps": float(np.mean(steps)),
     }
@@ -593,11 +612,13 @@ def train(
         # --- episode bookkeeping
         group.returns += step.result.reward.sum(axis=1) / group.scenario.pursuers
         group.terms += step.result.reward_terms.sum(axis=1) / group.scenario.pursuers
+        group.team += step.result.team_cooperation * step.result.acted.sum(axis=1) / group.scenario.pursuers
         for env, outcome in step.outcomes.items():
-            recent.append(
-                (outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps, group.terms[env].copy())
-            )
-            group.returns[env], group.terms[env] = 0.0, 0.0
+            recent.append((
+                outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps,
+                group.terms[env].copy(), group.team[env],
+            ))
+            group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
             counters.episodes += 1
         previous_step = counters.env_step
         counters.env_step += num_envs

@@ -2,7 +2,8 @@
 # The G sweep: 14 fine-tunes side by side on one GPU machine (the device tool), each with its
 # learner on the GPU and its rollouts on one CPU core, stopped after LIMIT seconds; their
 # snapshots and metrics are packed into OUT (a tar file for every two runs, and summary.txt).
-# CONFIGS=GLOB runs experiments/gpu/GLOB.json alone.
+# CONFIGS=GLOB runs experiments/gpu/GLOB.json alone: CONFIGS='G2?-*' is the team-penalty sweep
+# (G20-G27, eight runs; docs/training.md, third session of 2026-11-26).
 #   bash experiments/gpu/run.sh OUT [LIMIT_S] [DEVICE]
 set -u
 out=${1:?usage: run.sh OUT [LIMIT_S] [DEVICE]}; limit=${2:-450}; device=${3:-cuda}

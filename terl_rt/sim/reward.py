@@ -42,8 +42,10 @@ def paper_reward_terms(
     encirclement: Encirclement,
     params: WorldParams,
     arena: tuple[float, float],
-) -> np.ndarray:
-    """The `paper` variant: reward terms [B, N, 7] in REWARD_TERMS order; zero for non-recipients.
+) -> tuple[np.ndarray, np.ndarray]:
+    """The `paper` variant: reward terms [B, N, 7] in REWARD_TERMS order, zero for non-recipients,
+    and the team-wide share of each world's cooperation term [B] (the imbalance penalty, paid
+    to every recipient alike and included in the terms).
 
     pursuer_xy [B, N, 2] m after the move; recipients [B, N] bool (active at the step
     start); pursuer_active [B, N] bool after collisions; collided [B, N] bool this step;
@@ -80,14 +82,15 @@ def paper_reward_terms(
     )
     cooperation = (around @ per_evader[:, :, None])[..., 0]
     imbalance = ((count < 3) & evader_active).any(-1) & ((count > 5) & evader_active).any(-1)  # [B]
-    terms[..., 4] = cooperation + (imbalance * p.reward_imbalance)[:, None]
+    team = imbalance * p.reward_imbalance  # [B]
+    terms[..., 4] = cooperation + team[:, None]
 
     # completion: 120 * (2 pi / n_k) * exp(-sigma) for each pursuer that encircled.
     ring = encirclement.ring_size
     terms[..., 6] = np.where(
         ring > 0, p.reward_completion * (2 * np.pi / np.maximum(ring, 1)) * np.exp(-encirclement.gap_std), 0.0
     )
-    return _for_recipients(terms, recipients)
+    return _for_recipients(terms, recipients), team
 
 
 def published_reward_terms(
@@ -99,8 +102,10 @@ def published_reward_terms(
     encirclement: Encirclement,
     params: WorldParams,
     arena: tuple[float, float],
-) -> np.ndarray:
-    """The `published` variant: reward terms [B, N, 7] in REWARD_TERMS order; zero for non-recipients.
+) -> tuple[np.ndarray, np.ndarray]:
+    """The `published` variant: reward terms [B, N, 7] in REWARD_TERMS order, zero for
+    non-recipients, and the team-wide share of each world's cooperation term [B] (the crowding
+    penalty, paid to every recipient alike whenever any evader is crowded; in the terms).
 
     pursuer_xy [B, N, 2] m after the move; recipients [B, N] bool (active at the step
     start); collided [B, N] bool this step; obstacle_distance_before [B, N] m: centre
@@ -130,8 +135,8 @@ def published_reward_terms(
     around = d_e <= p.related_distance  # [B, N, M]
     count = around.sum(1)  # [B, M]
     per_evader = np.where(count >= 3, p.reward_cooperation * np.maximum(0.0, 1.0 - p.cooperation_slope * (count - 3)), 0.0)
-    crowded = (count >= 5).any(-1)  # [B]
-    terms[..., 4] = (around @ per_evader[:, :, None])[..., 0] + (crowded * p.reward_crowding)[:, None]
+    team = (count >= 5).any(-1) * p.reward_crowding  # [B]
+    terms[..., 4] = (around @ per_evader[:, :, None])[..., 0] + team[:, None]
 
     # completion: 120 * (2 pi / helpers) * exp(-sigma), not in a step the pursuer collides.
     helpers = encirclement.ring_size - 1
@@ -140,7 +145,7 @@ def published_reward_terms(
         p.reward_completion * (2 * np.pi / np.maximum(helpers, 1)) * np.exp(-encirclement.gap_std),
         0.0,
     )
-    return _for_recipients(terms, recipients)
+    return _for_recipients(terms, recipients), team
 
 
 def first_perceived_obstacle_distance(geometry: Geometry, obstacle_r: np.ndarray, params: WorldParams) -> np.ndarray:

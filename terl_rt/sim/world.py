@@ -40,6 +40,10 @@ class StepResult:
     """[B, N] float64: total reward of each pursuer (0 for those inactive at the step start)."""
     reward_terms: np.ndarray
     """[B, N, 7] float64: the terms, in terl_rt.sim.reward.REWARD_TERMS order."""
+    team_cooperation: np.ndarray
+    """[B] float64: the share of the cooperation term paid to every pursuer of a world alike,
+    whatever it did (paper: the imbalance penalty; published: the crowding penalty); included
+    in reward_terms."""
     acted: np.ndarray
     """[B, N] bool: pursuers active at the step start (they acted and get a reward)."""
     collided: np.ndarray
@@ -213,11 +217,11 @@ class World:
         remember_perceived(state, geometry, p, acted)
         ring = encircle(state, geometry, p, acted)
         if scenario.reward == "published":
-            terms = published_reward_terms(
+            terms, team = published_reward_terms(
                 state.pursuer_xy, acted, collided, obstacle_before, geometry, ring, p, scenario.arena,
             )
         else:
-            terms = paper_reward_terms(
+            terms, team = paper_reward_terms(
                 state.pursuer_xy, acted, state.pursuer_active, collided, evader_was_active,
                 state.obstacle_r, geometry, ring, p, scenario.arena,
             )
@@ -232,7 +236,7 @@ class World:
 
         observation = pursuer_observations(state, geometry, p, scenario.evader_slots)
         return observation, StepResult(
-            reward=terms.sum(-1), reward_terms=terms, acted=acted, collided=collided,
+            reward=terms.sum(-1), reward_terms=terms, team_cooperation=team, acted=acted, collided=collided,
             captured=ring.evader_captured, pursuer_target=ring.pursuer_target,
             evader_actions=evader_actions, terminated=terminated, truncated=truncated, success=success,
         )

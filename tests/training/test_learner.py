@@ -23,7 +23,7 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.train import (
     BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, learning_rate_at, shaped_rewards,
-    snapshot_score, soft_update, subsample_per_group, train,
+    snapshot_score, soft_update, subsample_per_group, taught_rewards, train,
 )
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
@@ -388,6 +388,57 @@ def test_a_collision_ends_on_the_collision_value_and_other_steps_are_unchanged()
     assert (stored[-100.0][2:] == stored[0.0][2:]).all()
     with pytest.raises(ConfigError, match="collision_value: must be <= 0"):
         tiny(collision_value=5.0)
+
+
+# ---------------------------------------------------------------- taught weights of reward terms
+def first_step(worlds: int):
+    """(turn, step) of the first step of `worlds` small-11 worlds, every pursuer taking action 0."""
+    rollout = Rollout(World(Scenario.preset("small-11"), worlds, seed=5))
+    turn = rollout.turn()
+    return turn, rollout.step(np.zeros(len(turn.rows), np.int64))
+
+
+def test_the_emergency_weight_scales_the_emergency_term_and_nothing_else():
+    turn, step = first_step(1)
+    emergency = REWARD_TERMS.index("emergency")
+    # Pursuer 0 is in an emergency (-5) in this step, pursuer 1 is not.
+    step.result.reward_terms[0, 0, emergency], step.result.reward_terms[0, 1, emergency] = -5.0, 0.0
+    step.result.reward[0] = step.result.reward_terms[0].sum(-1)
+    taught = {}
+    for weight in (1.0, 3.0, 0.0):
+        potential = np.zeros(len(turn.rows))
+        taught[weight] = taught_rewards(step.result, turn.rows, potential, tiny(emergency_weight=weight))[0]
+    assert taught[1.0] == pytest.approx(step.result.reward[0])
+    assert taught[3.0][0] == pytest.approx(taught[1.0][0] - 10.0)  # -5 taught three times
+    assert taught[0.0][0] == pytest.approx(taught[1.0][0] + 5.0)  # not taught at all
+    assert taught[3.0][1] == taught[1.0][1] == taught[0.0][1]
+    with pytest.raises(ConfigError, match="emergency_weight: must be >= 0"):
+        tiny(emergency_weight=-1.0)
+
+
+def test_the_team_penalty_weight_scales_the_team_wide_share_of_the_cooperation_term():
+    turn, step = first_step(2)
+    pursuers = step.result.reward.shape[1]
+    cooperation = REWARD_TERMS.index("cooperation")
+    # World 0 pays every pursuer the imbalance penalty (-10, on top of any share of its own), world 1 none.
+    step.result.team_cooperation[:] = [-10.0, 0.0]
+    step.result.reward_terms[0, :, cooperation] -= 10.0
+    step.result.reward[:] = step.result.reward_terms.sum(-1)
+    taught = {}
+    for weight, shaping in ((1.0, 0.0), (0.0, 0.0), (0.5, 0.0), (1.0, 1.0), (0.0, 1.0)):
+        potential = np.zeros(2 * pursuers)
+        config = tiny(team_penalty_weight=weight, potential_shaping=shaping)
+        taught[weight, shaping] = taught_rewards(step.result, turn.rows, potential, config)[0]
+    world_0 = turn.rows < pursuers
+    assert taught[1.0, 0.0] == pytest.approx(step.result.reward.ravel()[turn.rows])
+    assert taught[0.0, 0.0][world_0] == pytest.approx(taught[1.0, 0.0][world_0] + 10.0)  # not taught
+    assert taught[0.5, 0.0][world_0] == pytest.approx(taught[1.0, 0.0][world_0] + 5.0)  # taught half
+    assert (taught[0.0, 0.0][~world_0] == taught[1.0, 0.0][~world_0]).all()
+    # Shaped, the ring income is paid as a potential: without the team's -10 the -10 + income of
+    # world 0 is its income again, which the shaping takes out of the step's reward.
+    assert taught[0.0, 1.0][~world_0] == pytest.approx(taught[1.0, 1.0][~world_0])
+    with pytest.raises(ConfigError, match="team_penalty_weight: must be >= 0"):
+        tiny(team_penalty_weight=-0.5)
 
 
 # ---------------------------------------------------------------- soft target updates
