@@ -372,9 +372,15 @@ def _validate(config: Config) -> None:
     if config.potential_shaping < 0.0:
         raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
     if config.team_penalty_weight < 0.0:
-        raise ConfigError(f"team_penalty_weight: must be >= 0 (a penalty is never paid), got {config.team_penalty_weight}")
+        raise ConfigError(
+            "team_penalty_weight: must be >= 0 (a negative weight would teach the penalty as income), "
+            f"got {config.team_penalty_weight}"
+        )
     if config.emergency_weight < 0.0:
-        raise ConfigError(f"emergency_weight: must be >= 0 (an emergency is never paid), got {config.emergency_weight}")
+        raise ConfigError(
+            "emergency_weight: must be >= 0 (a negative weight would teach the emergency as income), "
+            f"got {config.emergency_weight}"
+        )
     if config.collision_value > 0.0:
         raise ConfigError(f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {config.collision_value}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):

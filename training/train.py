@@ -213,7 +213,8 @@ def taught_terms(result: StepResult, rows: np.ndarray, config: Config) -> np.nda
     Config.team_penalty_weight; the others as the world paid them."""
     terms = result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows]
     terms[:, _EMERGENCY] *= config.emergency_weight
-    terms[:, _COOPERATION] += (config.team_penalty_weight - 1.0) * result.team_cooperation[rows // result.reward.shape[1]]
+    team = result.team_cooperation[rows // result.reward.shape[1]]  # [R], each row's world's
+    terms[:, _COOPERATION] += (config.team_penalty_weight - 1.0) * team
     return terms
 
 

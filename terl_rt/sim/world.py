@@ -41,9 +41,9 @@ class StepResult:
     reward_terms: np.ndarray
     """[B, N, 7] float64: the terms, in terl_rt.sim.reward.REWARD_TERMS order."""
     team_cooperation: np.ndarray
-    """[B] float64: the share of the cooperation term paid to every pursuer of a world alike,
-    whatever it did (paper: the imbalance penalty; published: the crowding penalty); included
-    in reward_terms."""
+    """[B] float64: the share of the cooperation term paid alike to every pursuer of a world that
+    acted, whatever it did (paper: the imbalance penalty; published: the crowding penalty);
+    included in reward_terms."""
     acted: np.ndarray
     """[B, N] bool: pursuers active at the step start (they acted and get a reward)."""
     collided: np.ndarray
