@@ -283,7 +283,7 @@ def test_reward_terms_match_plain_loop_on_random_worlds(seed):
     remember_perceived(state, geometry, DEFAULT, recipients)
     ring_ = encircle(state, geometry, DEFAULT, recipients)
     got, _ = paper_reward_terms(state.pursuer_xy, recipients, state.pursuer_active, collided, state.evader_active,
-                       state.obstacle_r, geometry, ring_, DEFAULT, (20.0, 20.0))
+                                state.obstacle_r, geometry, ring_, DEFAULT, (20.0, 20.0))
     expected = reference_terms(state, recipients, collided, ring_.ring_size, ring_.gap_std, DEFAULT, (20.0, 20.0))
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
     # the worlds exercise every term

@@ -354,7 +354,8 @@ def _validate(config: Config) -> None:
         if getattr(config, name) < 1:
             raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
     for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps",
-                 "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
+                 "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate",
+                 "emergency_weight", "team_penalty_weight"):
         if getattr(config, name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
     # A tiny probe tells transformer bodies (which record their layers) from the others.
@@ -371,16 +372,6 @@ def _validate(config: Config) -> None:
             raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
     if config.potential_shaping < 0.0:
         raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
-    if config.team_penalty_weight < 0.0:
-        raise ConfigError(
-            "team_penalty_weight: must be >= 0 (a negative weight would teach the penalty as income), "
-            f"got {config.team_penalty_weight}"
-        )
-    if config.emergency_weight < 0.0:
-        raise ConfigError(
-            "emergency_weight: must be >= 0 (a negative weight would teach the emergency as income), "
-            f"got {config.emergency_weight}"
-        )
     if config.collision_value > 0.0:
         raise ConfigError(f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {config.collision_value}")
     for name in ("learning_rate", "max_grad_norm", "kappa"):

@@ -18,11 +18,11 @@ the step size may fall linearly to the end of the run (`Config.final_learning_ra
 
 Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
 paid as potential differences (`shaped_rewards`), the emergency term is taught times
-`Config.emergency_weight` and the team-wide crowding penalty times `Config.team_penalty_weight`,
-with `Config.collision_value` a collision ends on that value
-instead of 0; each pursuer's step then goes through an n-step window (`Config.n_step`) and,
-when `Config.store_pursuers` is set, only a random subset of a world step's pursuers
-enter the buffer. A pursuer's transition is terminal when it collides, and when its
+`Config.emergency_weight` and the team-wide crowding penalty times
+`Config.team_penalty_weight` (`taught_terms`), with `Config.collision_value` a collision ends
+on that value instead of 0; each pursuer's step then goes through an n-step window
+(`Config.n_step`) and, when `Config.store_pursuers` is set, only a random subset of a world
+step's pursuers enter the buffer. A pursuer's transition is terminal when it collides, and when its
 episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
 
 metrics.jsonl holds one JSON object a line, told apart by "kind":
@@ -30,8 +30,8 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
   episodes, updates, stage, epsilon, learning_rate, loss (mean since the last record), success_rate,
   mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
   same split by reward term), team_cooperation (the team-wide share of return_terms'
-  cooperation, paid to every pursuer alike: `Config.team_penalty_weight`), collision_ratio and episode_steps over the last 100
-  episodes, steps_per_second (this session),
+  cooperation, paid to every pursuer alike: `Config.team_penalty_weight`), collision_ratio
+  and episode_steps over the last 100 episodes, steps_per_second (this session),
   wall_seconds (all sessions), eval (the `greedy_evaluation` dict, or null);
 - "stage": env_step and the curriculum stage that starts there;
 - "resume": env_step and how the replay buffer was restored (loaded, or refilled);
@@ -260,7 +260,6 @@ class WorldGroup:
         """[B, terms] the same split by reward term."""
         self.team = np.zeros(config.num_envs)
         """[B] the team-wide share of the cooperation term in it (StepResult.team_cooperation)."""
-
 
 
 def shaped_rewards(
