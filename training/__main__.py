@@ -52,7 +52,7 @@ def config_options(command):
         click.option("--num-envs", type=int, metavar="B", help="Environments stepped together (default 8)."),
         click.option("--threads", type=int, metavar="T", help="torch intra-op threads (default 2)."),
         click.option("--seed", type=int, metavar="S",
-                     help="Random seed (default 1); a resume continues the checkpoint's CPU generators instead (the CUDA one of --device cuda takes S anew)."),
+                     help="Random seed (default 1); a resume continues the checkpoint's CPU generators instead, unless the config sets resume_reseeds (the CUDA one of --device cuda takes S anew)."),
         click.option("--device", metavar="DEV",
                      help="torch device of the networks and updates: cpu (default) or cuda; rollouts stay on the CPU."),
     ]

@@ -77,6 +77,13 @@ def network_from_config(config: Config) -> QNetwork:
     return model
 
 
+def seed_generators(seed: int, rng: np.random.Generator) -> None:
+    """Seed Python's `random`, `rng` (as `np.random.default_rng(seed)` would be) and torch's generators."""
+    random.seed(seed)
+    rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+    torch.manual_seed(seed)
+
+
 def rng_states(rng: np.random.Generator) -> dict[str, Any]:
     """JSON-serialisable RNG states: Python `random`, the run's NumPy generator, torch CPU."""
     version, internal, gauss = random.getstate()

@@ -47,10 +47,15 @@ class Config:
     # --- run
     seed: int = 1
     """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python.
-    A resume, a fine-tune included, continues the checkpoint's CPU generators instead: on the
-    CPU, changing the seed there does not start another sample of the run. The CUDA generator
-    (the quantile fractions of updates on a GPU) is not saved and is seeded anew, so on a GPU
-    it does."""
+    A resume, a fine-tune included, continues the checkpoint's CPU generators instead, unless
+    `resume_reseeds`: on the CPU, changing the seed there does not start another sample of the
+    run. The CUDA generator (the quantile fractions of updates on a GPU) is not saved and is
+    seeded anew, so on a GPU it does."""
+    resume_reseeds: bool = False
+    """a resume seeds Python's, NumPy's and torch's generators anew from `seed` instead of
+    continuing the checkpoint's: fine-tunes from one checkpoint with other seeds are other
+    samples of the run (other worlds, exploration and replay draws). Off, a resume continues
+    the run bit for bit."""
     threads: int = 2
     """torch intra-op threads, set by the command-line entry point only."""
     total_steps: int = 7_000_000

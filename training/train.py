@@ -46,7 +46,6 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
 from __future__ import annotations
 
 import json
-import random
 import sys
 import time
 from collections import deque
@@ -66,7 +65,7 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
 from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer, pad_evader_slots
 from training.checkpoint import (
-    Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot,
+    Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot, seed_generators,
 )
 from training.config import CURRICULUM_STAGES, RETURN_FIELDS, SNAPSHOT_FIELDS, Config, changed_fields
 from training.export import INPUT_NAMES
@@ -518,15 +517,16 @@ def train(
     log_path = out_dir / METRICS_FILE
 
     # --- seeding
-    random.seed(config.seed)
-    rng = np.random.default_rng(config.seed)
-    torch.manual_seed(config.seed)
+    rng = np.random.default_rng()
+    seed_generators(config.seed, rng)
 
     # --- networks, optimiser, counters, replay buffer
     model, target, optimizer = build_learner(config)
     counters = Counters()
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
+        if config.resume_reseeds:
+            seed_generators(config.seed, rng)
         # A fine-tune (a new config on the checkpoint's weights) that evaluates snapshots on other
         # scenarios starts its own best: scores of different evaluations do not compare.
         saved_config = read_config(resume)
@@ -566,6 +566,8 @@ def train(
                 f"it is refilled to {held}, and for at least "
                 f"{config.learning_starts} environment steps, before updates resume"
             )
+        if config.resume_reseeds:
+            note += f"; its random generators are seeded anew from seed {config.seed} (resume_reseeds)"
         if evaluation_changes:
             note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})

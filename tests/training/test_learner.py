@@ -5,6 +5,7 @@ soft target updates, a falling step size and averaged snapshots."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import torch
 from safetensors.torch import load_file
 
 from training.buffer import NStepWindow, ReplayBuffer, pad_evader_slots
-from training.checkpoint import network_from_config
+from training.checkpoint import network_from_config, seed_generators
 from training.config import Config, ConfigError
 from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
@@ -234,6 +235,28 @@ def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
     train(tiny(total_steps=640), run, resume=run, show_progress=False)
     note = next(r["note"] for r in records(run) if r["kind"] == "resume")
     assert f"with its replay buffer ({saved:,} transitions)" in note
+
+
+def test_seed_generators_seeds_like_a_new_generator():
+    rng = np.random.default_rng(99)
+    seed_generators(5, rng)
+    assert rng.integers(2**31, size=3).tolist() == np.random.default_rng(5).integers(2**31, size=3).tolist()
+
+
+def test_a_resume_reseeds_only_when_told(tmp_path):
+    run = tmp_path / "run"
+    train(tiny(), run, show_progress=False)
+
+    def resumed(name: str, **changes) -> dict[str, torch.Tensor]:
+        train(tiny(total_steps=640, **changes), tmp_path / name, resume=run, show_progress=False)
+        return load_file(str(tmp_path / name / "model.safetensors"))
+
+    same = [resumed("seed-1"), resumed("seed-3", seed=3)]
+    other = [resumed("reseeded-2", seed=2, resume_reseeds=True), resumed("reseeded-3", seed=3, resume_reseeds=True)]
+    assert all(torch.equal(same[0][k], same[1][k]) for k in same[0])  # the checkpoint's generators continue
+    assert not all(torch.equal(other[0][k], other[1][k]) for k in other[0])  # two samples
+    note = next(r["note"] for r in records(tmp_path / "reseeded-2") if r["kind"] == "resume")
+    assert "seeded anew from seed 2 (resume_reseeds)" in note
 
 
 # ---------------------------------------------------------------- best snapshot
@@ -584,3 +607,11 @@ def test_a_shifted_checkpoint_moves_every_q_value_and_keeps_the_policy(tmp_path,
     assert fine_tune(tmp_path / "shifted", tmp_path / "tuned", tiny(total_steps=320), tmp_path) == 0
     assert main(["shift", str(run), "--by", "5", "-o", str(tmp_path / "shifted")]) == 1
     assert "not empty" in capsys.readouterr().err
+
+
+def test_every_committed_experiment_config_loads():
+    """The configs under experiments/ are what the docs tell people to rerun: each must still load."""
+    configs = sorted((Path(__file__).parents[2] / "experiments").glob("*/*.json"))
+    assert len(configs) > 100
+    for path in configs:
+        Config.from_file(path)
