@@ -18,7 +18,7 @@ the step size may fall linearly to the end of the run (`Config.final_learning_ra
 
 Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
 paid as potential differences (`shaped_rewards`), the emergency term is taught times
-`Config.emergency_weight` and the team-wide crowding penalty times
+`Config.emergency_weight` and the team-wide share of the cooperation term times
 `Config.team_penalty_weight` (`taught_terms`), with `Config.collision_value` a collision ends
 on that value instead of 0; each pursuer's step then goes through an n-step window
 (`Config.n_step`) and, when `Config.store_pursuers` is set, only a random subset of a world
@@ -525,8 +525,6 @@ def train(
     counters = Counters()
     if resume is not None:
         counters = load_checkpoint(resume, model, target, optimizer, rng)
-        if config.resume_reseeds:
-            seed_generators(config.seed, rng)
         # A fine-tune (a new config on the checkpoint's weights) that evaluates snapshots on other
         # scenarios starts its own best: scores of different evaluations do not compare.
         saved_config = read_config(resume)
@@ -566,7 +564,8 @@ def train(
                 f"it is refilled to {held}, and for at least "
                 f"{config.learning_starts} environment steps, before updates resume"
             )
-        if config.resume_reseeds:
+        if config.resume_reseeds:  # before the worlds are drawn, the first use of the generators
+            seed_generators(config.seed, rng)
             note += f"; its random generators are seeded anew from seed {config.seed} (resume_reseeds)"
         if evaluation_changes:
             note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
