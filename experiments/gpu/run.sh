@@ -3,10 +3,11 @@
 # learner on the GPU and its rollouts on one CPU core, stopped after LIMIT seconds; their
 # snapshots and metrics are packed into OUT (a tar file for every two runs, and summary.txt).
 # Without CONFIGS it runs G01-G14.
-# CONFIGS=GLOB runs experiments/gpu/GLOB.json alone: CONFIGS='G2?-*' is the team-penalty sweep
-# (G20-G27, eight runs; docs/training.md, third session of 2026-11-26).
-# CONFIGS='G3?-*': V1's recipe with six more CUDA seeds and w_t = 2 with two (G30-G37; the
-# fourth session of 2026-11-26).
+# CONFIGS='GLOB ...' runs experiments/gpu/GLOB.json for each glob alone: CONFIGS='G2?-*' is the
+# team-penalty sweep (G20-G27, eight runs; docs/training.md, third session of 2026-11-26).
+# CONFIGS='G3?-* G4[0-3]-*': V1's recipe with CUDA seeds 5-16 and w_t = 2 with seeds 1-2
+# (G30-G43); CONFIGS='G4[4-9]-* G5?-*': w_t = 2 with seeds 3-10 and V1's recipe with seeds
+# 17-22 (G44-G57); 14 runs a command (the fifth session of 2026-11-26).
 #   bash experiments/gpu/run.sh OUT [LIMIT_S] [DEVICE]
 set -u
 out=${1:?usage: run.sh OUT [LIMIT_S] [DEVICE]}; limit=${2:-450}; device=${3:-cuda}
@@ -16,7 +17,8 @@ work=$(mktemp -d)
 start=$(date +%s)
 $python -m training shift checkpoints/shaping/S2-shaped-small-415k --by -300 -o "$work/S2-shifted-300" || exit 1
 $python -m training shift checkpoints/shaping/V1-falling-step-size-440k --by -300 -o "$work/V1-shifted-300" || exit 1
-for config in experiments/gpu/${CONFIGS:-G[01]?-*}.json; do
+read -ra globs <<<"${CONFIGS:-G[01]?-*}"
+for config in $(for glob in "${globs[@]}"; do echo experiments/gpu/$glob.json; done); do
     name=$(basename "$config" .json)
     case $name in
         *from-V1-440k) resume=$work/V1-shifted-300 ;;
