@@ -18,7 +18,7 @@ start=$(date +%s)
 $python -m training shift checkpoints/shaping/S2-shaped-small-415k --by -300 -o "$work/S2-shifted-300" || exit 1
 $python -m training shift checkpoints/shaping/V1-falling-step-size-440k --by -300 -o "$work/V1-shifted-300" || exit 1
 read -ra globs <<<"${CONFIGS:-G[01]?-*}"
-for config in $(for glob in "${globs[@]}"; do echo experiments/gpu/$glob.json; done); do
+for config in $(printf 'experiments/gpu/%s.json ' "${globs[@]}"); do
     name=$(basename "$config" .json)
     case $name in
         *from-V1-440k) resume=$work/V1-shifted-300 ;;
