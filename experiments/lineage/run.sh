@@ -14,6 +14,7 @@ segments=()
 for segment in P-published F-medium H-large S2-small V1-mix; do
     compgen -G "experiments/lineage/$chain-$segment*.json" > /dev/null && segments+=("$segment")
 done
+(( ${#segments[@]} )) || { echo "no configs experiments/lineage/$chain-SEGMENT*.json" >&2; exit 2; }
 first=${3:-${segments[0]}}
 start=${START:-checkpoints/compare-200k/A-continuations/published-300k}
 running=false
