@@ -26,9 +26,9 @@ class WorldParams:
     substeps: int = 10
     """integration sub-steps per decision step (0.5 s). Valid: [1, 1000]."""
     pursuer_max_speed: float = 3.0
-    """m/s: pursuer s_max. Valid: (0, 100]."""
+    """m/s: pursuer s_max. Valid: [1e-06, 100] (the drag max(a_set) / s_max stays finite)."""
     evader_max_speed: float = 3.5
-    """m/s: evader s_max. Valid: (0, 100]."""
+    """m/s: evader s_max. Valid: [1e-06, 100] (the drag max(a_set) / s_max stays finite)."""
 
     # --- obstacles and vortices (sections 1, 3, 4)
     obstacle_radius_min: float = 1.0
@@ -139,8 +139,8 @@ PARAM_RANGES: dict[str, tuple[float, float, bool, bool]] = {
     'robot_radius': (0, 10, True, False),
     'dt': (0, 1, True, False),
     'substeps': (1, 1000, False, False),
-    'pursuer_max_speed': (0, 100, True, False),
-    'evader_max_speed': (0, 100, True, False),
+    'pursuer_max_speed': (1e-6, 100, False, False),
+    'evader_max_speed': (1e-6, 100, False, False),
     'obstacle_radius_min': (0, 100, True, False),
     'obstacle_radius_max': (0, 100, True, False),
     'vortex_core_radius': (0, 100, True, False),
