@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 import terl_rt.sim.reset
 from terl_rt.policy.embed import observe
-from terl_rt.sim.params import PARAM_RANGES, WorldParams
+from terl_rt.sim.params import INTEGER_PARAMS, PARAM_RANGES, WorldParams
 from terl_rt.sim.scenario import SCENARIO_LIMITS, Scenario, ScenarioError, loads_json
 from terl_rt.sim.simulator import Simulator
 
@@ -214,6 +214,37 @@ def test_every_limit_and_range_is_documented():
 def test_every_preset_stays_valid():
     for name in Scenario.presets():
         assert Scenario.from_dict(json.loads(json.dumps(Scenario.preset(name).to_dict()))) == Scenario.preset(name)
+
+
+def edge_values(low: float, high: float, low_open: bool, high_open: bool, integer: bool) -> list[float]:
+    """The bounds a range admits, the number just inside an open one, and tiny values above an open 0."""
+    step_in = (lambda bound, towards: bound + (1 if towards > bound else -1)) if integer else math.nextafter
+    values = [step_in(low, high) if low_open else low, step_in(high, low) if high_open else high]
+    if low == 0 and not integer:
+        values += [1e-300, 1e-30, 1e-6]
+    return values
+
+
+@pytest.mark.parametrize("name", PARAMS)
+def test_every_constant_at_the_edges_of_its_range_runs_soundly(name):
+    """Each constant alone at its extremes (5e-324 for a range open at 0): a sound episode
+    with finite observations and rewards, or the documented ScenarioError."""
+    for value in edge_values(*PARAM_RANGES[name], integer=name in INTEGER_PARAMS):
+        data = base()
+        data["params"] = {name: value}
+        try:
+            scenario = Scenario.from_dict(data)
+            sim = Simulator(scenario, seed=0)
+            sim.reset()
+        except ScenarioError:
+            continue
+        rng = np.random.default_rng(0)
+        while not sim.done:
+            observation, info = sim.step(rng.integers(0, 9, scenario.pursuers))
+            floats = (observation.ego, observation.teammates, observation.evaders, observation.obstacles, info.reward)
+            assert all(np.isfinite(array).all() for array in floats), (name, value)
+        state = sim.state()
+        assert np.isfinite(state["pursuer_xy"]).all() and np.isfinite(state["evader_xy"]).all(), (name, value)
 
 
 # ------------------------------------------------------------- the embedding API

@@ -192,7 +192,8 @@ PAIRED_RANGES: tuple[tuple[str, str], ...] = (
 )
 """(min, max) pairs: min <= max."""
 
-_INT_PARAMS = ("substeps", "placement_tries", "min_active_pursuers")
+INTEGER_PARAMS = ("substeps", "placement_tries", "min_active_pursuers")
+"""The constants that take integers (the others take any number in their range)."""
 
 
 def format_range(low: float, high: float, low_open: bool, high_open: bool) -> str:
@@ -217,7 +218,7 @@ def check_param(name: str, value: object) -> str | None:
     right kind within PARAM_RANGES[name]. Never converts huge integers to float."""
     low, high, low_open, high_open = PARAM_RANGES[name]
     span = format_range(low, high, low_open, high_open)
-    is_int = name in _INT_PARAMS
+    is_int = name in INTEGER_PARAMS
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         return f"must be {'an integer' if is_int else 'a number'} in {span}, got {short_repr(value)}"
     if isinstance(value, (float, np.floating)) and not math.isfinite(value):

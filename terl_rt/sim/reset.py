@@ -70,7 +70,7 @@ def _place(
                 )
             if drawn >= tries:
                 raise ScenarioError(
-                    f"{field}: could not place {field[:-1] if field.endswith('s') else field} {i + 1} of {count} "
+                    f"{field}: could not place number {i + 1} of {count} "
                     f"in {tries} tries ({why})"
                 )
             chunk = min(_CHUNK, tries - drawn)
