@@ -199,12 +199,20 @@ def shift_command(checkpoint: Path, offset: float, output: Path) -> None:
               help="Preset the greedy episodes run on.")
 @click.option("--episodes", type=click.IntRange(min=1), default=4, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the first world (one per episode).")
+@click.option("--epsilon", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
+              help="Probability of a random action per pursuer-step (0: greedy; training explores at its end_e, 0.05).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object per checkpoint instead.")
-def values_command(checkpoints: tuple[Path, ...], preset: str, episodes: int, seed: int, as_json: bool) -> None:
-    """Compare each network's Q-values with the returns that follow them: greedy episodes, every
+def values_command(
+    checkpoints: tuple[Path, ...], preset: str, episodes: int, seed: int, epsilon: float, as_json: bool
+) -> None:
+    """Compare each network's Q-values with the returns that follow them: greedy episodes (or
+    exploring ones, --epsilon), every
     pursuer-step's Q(s, a) against the discounted return of the rewards the network was taught
     (its config's shaping and collision value). Q far above the returns, or uncorrelated with
-    them, is a value function that has not caught up with its reward."""
+    them, is a value function that has not caught up with its reward. Values track the returns
+    when the correlation is at least 0.5 and the mean |Q - return| under a tenth of the returns'
+    range (training.values.ValueCheck.tracks_returns); both are in the taught units (the config's
+    reward_scale), so the verdict does not depend on the scale."""
     from dataclasses import asdict
 
     from terl_rt.sim.scenario import Scenario, ScenarioError
@@ -216,21 +224,25 @@ def values_command(checkpoints: tuple[Path, ...], preset: str, episodes: int, se
     except ScenarioError as error:
         raise click.BadParameter(str(error), param_hint="--scenario") from error
     if not as_json:
-        click.echo("| checkpoint | pursuer-steps | Q(s, a) | return | Q - return: mean | median | correlation |")
-        click.echo("|---|---:|---:|---:|---:|---:|---:|")
+        click.echo(
+            "| checkpoint | pursuer-steps | Q(s, a) | return | Q - return: mean | median | mean abs "
+            "| return range | correlation | tracks returns |"
+        )
+        click.echo("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for source in checkpoints:
         try:
             model, config, _ = load_network(source)
         except (FileNotFoundError, ValueError) as error:
             raise click.ClickException(str(error)) from error
-        check = value_check(model, config, scenario.replace(max_steps=config.eval_max_steps), episodes, seed)
+        check = value_check(model, config, scenario.replace(max_steps=config.eval_max_steps), episodes, seed, epsilon)
         if as_json:
-            click.echo(json.dumps({"checkpoint": str(source), **asdict(check)}))
+            click.echo(json.dumps({"checkpoint": str(source), **asdict(check), "tracks_returns": check.tracks_returns}))
         else:
             correlation = "-" if check.correlation is None else f"{check.correlation:.2f}"
             click.echo(
-                f"| {source} | {check.pursuer_steps:,} | {check.q_mean:.1f} | {check.return_mean:.1f} | "
-                f"{check.gap_mean:.1f} | {check.gap_median:.1f} | {correlation} |"
+                f"| {source} | {check.pursuer_steps:,} | {check.q_mean:.2f} | {check.return_mean:.2f} | "
+                f"{check.gap_mean:.2f} | {check.gap_median:.2f} | {check.abs_gap_mean:.2f} | "
+                f"{check.return_range:.2f} | {correlation} | {'yes' if check.tracks_returns else 'no'} |"
             )
 
 
@@ -299,7 +311,7 @@ def card_command(run: Path, onnx: str, config_file: str, machine: str, compariso
 def bench_command(seconds: float, **options) -> None:
     """Time rollouts (per curriculum stage) and updates; estimate a run's wall clock.
     Without --model or --config: TERL's packaged config."""
-    from training.train import benchmark
+    from training.train import UPDATE_MODES, benchmark
 
     if options["config_file"] is None and options["model"] is None:
         options["model"] = "terl"
@@ -313,7 +325,18 @@ def bench_command(seconds: float, **options) -> None:
     click.echo("rollout (collect + store, no learning), environment steps/s:")
     for name, rate in result.rollout_steps_per_second.items():
         click.echo(f"  {name:<14} {rate:10.1f}")
-    click.echo(f"updates/s at batch {config.batch_size}: {result.updates_per_second:.2f}")
+    click.echo(f"updates/s at batch {config.batch_size} (sample, forward, backward, Adam step), by the rows' scenario:")
+    click.echo(f"  {'':<14}" + "".join(f"{mode:>14}" for mode in UPDATE_MODES))
+    for name, rates in result.update_modes.items():
+        click.echo(f"  {name:<14}" + "".join(f"{rates[mode]:14.2f}" for mode in UPDATE_MODES))
+    mix = result.mix_updates_per_second
+    click.echo(f"  {'mix of stages':<14}" + "".join(f"{mix[mode]:14.2f}" for mode in UPDATE_MODES))
+    base = mix[UPDATE_MODES[0]]
+    click.echo(
+        "  against fp32 full over the mix: "
+        + ", ".join(f"{mode} {mix[mode] / base:.2f}x" for mode in UPDATE_MODES[1:])
+        + f"; the run uses {'bf16' if config.bf16 else 'fp32'} trimmed ({result.updates_per_second:.2f} updates/s)"
+    )
     hours = result.estimated_hours
     click.echo(
         f"estimated wall clock of {config.total_steps:,} environment steps "

@@ -184,6 +184,28 @@ def pad_evader_slots(inputs: Mapping[str, np.ndarray], evader_slots: int) -> dic
     }
 
 
+def trim_padding(inputs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Observation arrays [R, ...] (contract layout) with each entity group's slots (teammates,
+    evaders, obstacles) cut after the last slot that is valid in any row, keeping at least one.
+
+    Only slots empty in every row go, and every operation of the networks is masked, so their
+    outputs are those of the full arrays up to float round-off: a batch from a buffer padded to
+    20 evader slots, or a stage with 3 pursuers and 5 teammate slots, costs what its entities
+    cost. The arrays come back as views where nothing is cut (the mask is always a new array).
+    """
+    mask = inputs["mask"]
+    start, kept_columns, trimmed = 1, [np.arange(1)], dict(inputs)
+    for name in ("teammates", "evaders", "obstacles"):
+        slots = inputs[name].shape[1]
+        valid = np.flatnonzero(mask[:, start : start + slots].any(axis=0))  # slots valid in some row
+        keep = int(valid[-1]) + 1 if len(valid) else 1
+        trimmed[name] = inputs[name][:, :keep]
+        kept_columns.append(np.arange(start, start + keep))
+        start += slots
+    trimmed["mask"] = mask[:, np.concatenate(kept_columns)]
+    return trimmed
+
+
 class NStepWindow:
     """Turns per-step transitions of fixed rows (pursuer b * N + i of B worlds) into
     n-step transitions: R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}, bootstrapped

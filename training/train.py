@@ -1,7 +1,8 @@
 """Training of a pursuer Q-network: IQN (or DQN) with a shared network for every pursuer.
 
 Centralised training, decentralised execution (policy.md section 2): B worlds are
-stepped together; one batched forward of the online network chooses the action of
+stepped together; one batched forward of the online network (or of its copy refreshed every
+`Config.actor_update_frequency` steps) chooses the action of
 every active pursuer of every world (epsilon-greedy per pursuer), and every active
 pursuer's transition goes into one replay buffer. With `Config.mixed_scenarios` there is a
 group of B worlds per scenario (`WorldGroup`) and the batch steps go to the groups in turn,
@@ -45,6 +46,7 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
 
 from __future__ import annotations
 
+import copy
 import json
 import sys
 import time
@@ -63,7 +65,7 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import StepResult, World
-from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer, pad_evader_slots
+from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer, pad_evader_slots, trim_padding
 from training.checkpoint import (
     Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot, seed_generators,
 )
@@ -139,12 +141,13 @@ def as_tensors(arrays: dict[str, np.ndarray], device: torch.device | str = "cpu"
 
 
 def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray:
-    """argmax of the eval-mode Q-values (fixed fractions, as the exported policy): [R] int64."""
+    """argmax of the eval-mode Q-values (fixed fractions, as the exported policy) of the states
+    with their empty slots trimmed (`trim_padding`): [R] int64."""
     if len(states["ego"]) == 0:
         return np.zeros(0, np.int64)
     model.eval()
     with torch.inference_mode():
-        return model.q_values(*as_tensors(states, network_device(model))).argmax(dim=1).cpu().numpy()
+        return model.q_values(*as_tensors(trim_padding(states), network_device(model))).argmax(dim=1).cpu().numpy()
 
 
 def epsilon_greedy(
@@ -223,7 +226,8 @@ def taught_rewards(
     """What the learner is taught about one step of the pursuer rows [R] (b * N + n) that acted.
 
     Returns their rewards [R] (the `taught_terms` summed, their income shaped by
-    Config.potential_shaping, a collision ending on Config.collision_value), whether each
+    Config.potential_shaping, a collision ending on Config.collision_value, all times
+    Config.reward_scale), whether each
     transition is terminal [R] (the pursuer collided, or its episode terminated (all evaders
     encircled, or too few pursuers left) when Config.success_ends_transitions; truncated
     episodes, and terminated ones otherwise, are bootstrapped) and whether each row's episode
@@ -242,7 +246,7 @@ def taught_rewards(
         rewards = terms.sum(-1)
     if config.collision_value:
         rewards = rewards + np.where(result.collided.ravel()[rows], config.gamma * config.collision_value, 0.0)
-    return rewards, terminal, stops
+    return config.reward_scale * rewards, terminal, stops
 
 
 class WorldGroup:
@@ -289,36 +293,51 @@ def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator
 
 
 # ---------------------------------------------------------------- learning
-def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Config) -> torch.Tensor:
+def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Config, trim: bool = True) -> torch.Tensor:
     """Quantile Huber loss (IQN heads) or Huber TD loss (`dqn`) of a sampled batch, a scalar.
 
     The online network runs as it is (train mode: dropout on); the target network,
     in eval mode, gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its own
     argmax of the mean, or with `config.double_dqn` the online network's argmax.
+    `trim` cuts the slots empty in every row of the batch first (`trim_padding`: the same
+    loss to float round-off, in less time); `config.bf16` runs the networks under bfloat16
+    autocast, their heads' output layers and the loss in float32.
     """
     device = network_device(model)
-    states, next_states = as_tensors(batch.observations, device), as_tensors(batch.next_observations, device)
+    observations, next_observations = batch.observations, batch.next_observations
+    if trim:
+        observations, next_observations = trim_padding(observations), trim_padding(next_observations)
+    states, next_states = as_tensors(observations, device), as_tensors(next_observations, device)
     actions = torch.from_numpy(batch.actions).to(device)
     rewards, dones = torch.from_numpy(batch.rewards).to(device), torch.from_numpy(batch.dones).to(device)
     discounts = torch.from_numpy(batch.discounts).to(device)
     rows = len(actions)
-    if model.distributional:
-        taus = torch.rand(rows, config.num_quantiles, device=device)
-        quantiles = model(*states, taus).quantiles  # [R, N, A]
-        index = actions[:, None, None].expand(-1, config.num_quantiles, 1)
-        taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
+        if model.distributional:
+            taus = torch.rand(rows, config.num_quantiles, device=device)
+            quantiles = model(*states, taus).quantiles  # [R, N, A]
+            index = actions[:, None, None].expand(-1, config.num_quantiles, 1)
+            taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
+            with torch.no_grad():
+                next_taus = torch.rand(rows, config.num_target_quantiles, device=device)
+                next_quantiles = target(*next_states, next_taus).quantiles
+                best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if config.double_dqn else None
+                targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
+            return quantile_huber_loss(taken, taus, targets, config.kappa)
+        q_values = model(*states).quantiles[:, 0]  # [R, A]
+        taken = q_values.gather(1, actions[:, None]).squeeze(1)
         with torch.no_grad():
-            next_taus = torch.rand(rows, config.num_target_quantiles, device=device)
-            next_quantiles = target(*next_states, next_taus).quantiles
-            best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if config.double_dqn else None
-            targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
-        return quantile_huber_loss(taken, taus, targets, config.kappa)
-    q_values = model(*states).quantiles[:, 0]  # [R, A]
-    taken = q_values.gather(1, actions[:, None]).squeeze(1)
-    with torch.no_grad():
-        best = model(*next_states).quantiles[:, 0].argmax(dim=1) if config.double_dqn else None
-        targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], discounts, best)
-    return huber(taken - targets, config.kappa).mean()
+            best = model(*next_states).quantiles[:, 0].argmax(dim=1) if config.double_dqn else None
+            targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], discounts, best)
+        return huber(taken - targets, config.kappa).mean()
+
+
+def acting_network(model: QNetwork, config: Config) -> QNetwork:
+    """The network that acts in training: `model` itself, or with Config.actor_update_frequency
+    a copy of it (eval mode, no gradients) that the loop refreshes every so many steps."""
+    if not config.actor_update_frequency:
+        return model
+    return copy.deepcopy(model).eval().requires_grad_(False)  # draws no random numbers
 
 
 def learning_rate_at(config: Config, env_step: int) -> float:
@@ -355,10 +374,12 @@ def learn(
     optimizer: torch.optim.Optimizer,
     batch: ReplayBatch,
     config: Config,
+    trim: bool = True,
 ) -> float:
-    """One Adam step on `td_loss` with the gradient norm clipped; returns the loss."""
+    """One Adam step on `td_loss` (its padding trimmed unless `trim` is false) with the gradient
+    norm clipped; returns the loss."""
     model.train()
-    loss = td_loss(model, target, batch, config)
+    loss = td_loss(model, target, batch, config, trim)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(model.parameters(), config.max_grad_norm)
@@ -531,6 +552,7 @@ def train(
         evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
         if evaluation_changes:
             counters.best_score, counters.best_step = None, None
+    actor = acting_network(model, config)
     progress = Progress(show_progress, counters.env_step)
     scenarios = training_scenarios(config, counters.env_step)
     buffer = ReplayBuffer(config.buffer_size, buffer_evader_slots(scenarios))
@@ -605,7 +627,7 @@ def train(
             param_group["lr"] = learning_rate
         turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
         states = turn.observation.rows(turn.rows).as_inputs()
-        step = group.rollout.step(epsilon_greedy(model, states, epsilon, rng))
+        step = group.rollout.step(epsilon_greedy(actor, states, epsilon, rng))
 
         # --- store (the next observation is the one before any restart)
         group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
@@ -640,6 +662,8 @@ def train(
                     soft_update(target, model, config.target_tau)
             if not config.target_tau and crossings(previous_step, counters.env_step, config.target_network_frequency):
                 target.load_state_dict(model.state_dict())
+        if actor is not model and crossings(previous_step, counters.env_step, config.actor_update_frequency):
+            actor.load_state_dict(model.state_dict())
 
         # --- evaluate, snapshot and log
         finished = counters.env_step >= config.total_steps
@@ -708,6 +732,11 @@ def train(
 
 
 # ---------------------------------------------------------------- benchmark
+UPDATE_MODES = ("fp32 full", "fp32 trimmed", "bf16 trimmed")
+"""How `benchmark` times updates: float32 on the buffer's full rows (the loop before trimming),
+float32 with the empty slots trimmed (`trim_padding`), and trimmed under bfloat16 autocast."""
+
+
 @dataclass(frozen=True)
 class Throughput:
     """Speed of the loop's two halves on this machine, and what they imply for a run."""
@@ -720,8 +749,14 @@ class Throughput:
     threads: int
     rollout_steps_per_second: dict[str, float]
     """per scenario: environment steps/s of collect + store (no learning), random weights."""
+    update_modes: dict[str, dict[str, float]]
+    """per scenario, per UPDATES_MODES entry: gradient updates/s at config.batch_size (sample,
+    forward, backward, Adam step) on a buffer of that scenario's transitions."""
+    mix_updates_per_second: dict[str, float]
+    """per UPDATE_MODES entry: updates/s over the run's mix of scenarios (each scenario's share
+    of the steps, so of the updates)."""
     updates_per_second: float
-    """gradient updates/s at config.batch_size (sample, forward, backward, Adam step)."""
+    """updates/s over the mix in the config's own mode (trimmed; bf16 when config.bf16)."""
     estimated_hours: float
     """wall clock of config.total_steps: rollout time per stage plus the updates due."""
 
@@ -730,12 +765,14 @@ class Throughput:
 
 
 def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
-    """Time pure rollouts on every scenario of the run, then pure updates at batch `config.batch_size`.
+    """Time pure rollouts on every scenario of the run, then pure updates at batch
+    `config.batch_size` on each scenario's transitions in every UPDATE_MODES entry.
 
-    Each measurement runs for about `seconds` after a short warm-up. The estimate
-    weights each stage's rollout speed by its share of `config.total_steps` and
-    adds (total_steps - learning_starts) / train_frequency updates. The caller
-    sets torch's thread count.
+    Each rollout measurement runs for about `seconds` after a short warm-up, each update
+    measurement for about `seconds` / 3; the modes take turns on the same sampled batches. The
+    estimate weights each stage's rollout and update speeds by its share of `config.total_steps`
+    and counts (total_steps - learning_starts) / train_frequency updates. The caller sets torch's
+    thread count.
     """
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
@@ -749,10 +786,11 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
         names = (config.scenario, *config.mixed_scenarios)
         shares = {name: 1.0 / len(names) for name in names}
     slots = buffer_evader_slots([Scenario.preset(name) for name in shares])
-    buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), slots)
 
-    rates = {}
+    rates, modes = {}, {}
     for name in shares:
+        # Every scenario's transitions in a buffer of the run's row width, as training stores them.
+        buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), slots)
         scenario = Scenario.preset(name).replace(reward=config.reward)
         rollout = Rollout(World(scenario, config.num_envs, seed=config.seed))
         transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
@@ -766,14 +804,10 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
             transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
             timed_steps += 1
         rates[name] = timed_steps * config.num_envs / (time.perf_counter() - start)
+        modes[name] = time_updates(model, target, optimizer, buffer, config, rng, seconds / 3)
 
-    learn(model, target, optimizer, buffer.sample(config.batch_size, rng), config)  # warm-up
-    updates, start = 0, time.perf_counter()
-    while updates < 3 or time.perf_counter() - start < seconds:
-        learn(model, target, optimizer, buffer.sample(config.batch_size, rng), config)
-        updates += 1
-    updates_per_second = updates / (time.perf_counter() - start)
-
+    mix = {mode: 1.0 / sum(share / modes[name][mode] for name, share in shares.items()) for mode in UPDATE_MODES}
+    own = mix["bf16 trimmed" if config.bf16 else "fp32 trimmed"]
     rollout_seconds = sum(share * config.total_steps / rates[name] for name, share in shares.items())
     update_count = max(config.total_steps - config.learning_starts, 0) / config.train_frequency
     return Throughput(
@@ -784,6 +818,33 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
         num_envs=config.num_envs,
         threads=torch.get_num_threads(),
         rollout_steps_per_second=rates,
-        updates_per_second=updates_per_second,
-        estimated_hours=(rollout_seconds + update_count / updates_per_second) / 3600.0,
+        update_modes=modes,
+        mix_updates_per_second=mix,
+        updates_per_second=own,
+        estimated_hours=(rollout_seconds + update_count / own) / 3600.0,
     )
+
+
+def time_updates(
+    model: QNetwork,
+    target: QNetwork,
+    optimizer: torch.optim.Optimizer,
+    buffer: ReplayBuffer,
+    config: Config,
+    rng: np.random.Generator,
+    seconds: float,
+) -> dict[str, float]:
+    """Updates/s of each UPDATE_MODES entry on batches of `buffer`, the modes taking turns on
+    the same batches until each has run for about `seconds` (after one warm-up update each)."""
+    settings = {mode: (mode != "fp32 full", config.replace(bf16=mode.startswith("bf16"))) for mode in UPDATE_MODES}
+    elapsed = dict.fromkeys(UPDATE_MODES, 0.0)
+    counts = dict.fromkeys(UPDATE_MODES, -1)  # the first update of each mode is a warm-up
+    while min(counts.values()) < 3 or min(elapsed.values()) < seconds:
+        batch = buffer.sample(config.batch_size, rng)
+        for mode, (trim, mode_config) in settings.items():
+            start = time.perf_counter()
+            learn(model, target, optimizer, batch, mode_config, trim)
+            if counts[mode] >= 0:
+                elapsed[mode] += time.perf_counter() - start
+            counts[mode] += 1
+    return {mode: counts[mode] / elapsed[mode] for mode in UPDATE_MODES}

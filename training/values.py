@@ -19,9 +19,16 @@ import torch
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
+from training.buffer import trim_padding
 from training.config import Config
 from training.networks import QNetwork
 from training.train import as_tensors, taught_rewards
+
+
+MIN_CORRELATION = 0.5
+"""Correlation of Q(s, a) with the return at which values track the returns."""
+MAX_GAP_SHARE = 0.1
+"""Largest mean |Q - return|, as a share of the returns' range, at which values track the returns."""
 
 
 @dataclass(frozen=True)
@@ -31,21 +38,42 @@ class ValueCheck:
     scenario: str
     episodes: int
     pursuer_steps: int
+    epsilon: float
+    """probability of a random action per pursuer-step (0: greedy episodes)."""
     q_mean: float
-    """mean Q(s, a) of the actions taken, in return units."""
+    """mean Q(s, a) of the actions taken, in the taught return's units (times Config.reward_scale)."""
     return_mean: float
     """mean discounted return that followed them (episodes cut at the step limit end there)."""
     gap_mean: float
     """mean of Q(s, a) minus the return: > 0 overestimates."""
     gap_median: float
+    abs_gap_mean: float
+    """mean |Q(s, a) - return|."""
+    return_range: float
+    """the returns' range, max - min over the pursuer-steps."""
     correlation: float | None
     """Pearson correlation of Q(s, a) and the return over the pursuer-steps (None when either is constant)."""
 
+    @property
+    def tracks_returns(self) -> bool:
+        """The learner issue's bar for values that are values: correlation at least
+        `MIN_CORRELATION` and mean |Q - return| under `MAX_GAP_SHARE` of the returns' range."""
+        return (
+            self.correlation is not None
+            and self.correlation >= MIN_CORRELATION
+            and self.abs_gap_mean < MAX_GAP_SHARE * self.return_range
+        )
 
-def value_check(model: QNetwork, config: Config, scenario: Scenario, episodes: int, seed: int) -> ValueCheck:
-    """Run `episodes` greedy episodes of `scenario` as one batch (worlds seeded from `seed`, each
-    kept to its first episode) and compare each pursuer-step's Q(s, a) with its return."""
+
+def value_check(
+    model: QNetwork, config: Config, scenario: Scenario, episodes: int, seed: int, epsilon: float = 0.0
+) -> ValueCheck:
+    """Run `episodes` episodes of `scenario` as one batch (worlds seeded from `seed`, each kept to
+    its first episode), greedy or, with `epsilon`, each pursuer's action replaced by a uniformly
+    random one with that probability (as training explores; drawn from a generator seeded with
+    `seed`), and compare each pursuer-step's Q(s, a) with its return."""
     rollout = Rollout(World(scenario, num_envs=episodes, seed=seed))
+    rng = np.random.default_rng(seed)
     num_pursuers = scenario.pursuers
     potential = np.zeros(episodes * num_pursuers)
     ended = np.zeros(episodes, bool)
@@ -54,8 +82,10 @@ def value_check(model: QNetwork, config: Config, scenario: Scenario, episodes: i
     while not ended.all():
         turn = rollout.turn()
         with torch.inference_mode():
-            q_values = model.q_values(*as_tensors(turn.observation.rows(turn.rows).as_inputs())).numpy()
+            q_values = model.q_values(*as_tensors(trim_padding(turn.observation.rows(turn.rows).as_inputs()))).numpy()
         actions = q_values.argmax(axis=1)
+        explore = rng.random(len(actions)) < epsilon
+        actions[explore] = rng.integers(0, q_values.shape[1], int(explore.sum()))
         step = rollout.step(actions)
         first = ~ended[turn.rows // num_pursuers]  # rows of worlds still in their first episode
         rows = turn.rows[first]
@@ -74,10 +104,13 @@ def value_check(model: QNetwork, config: Config, scenario: Scenario, episodes: i
     return ValueCheck(
         scenario=scenario.name,
         episodes=episodes,
+        epsilon=epsilon,
         pursuer_steps=len(q_all),
         q_mean=float(q_all.mean()),
         return_mean=float(return_all.mean()),
         gap_mean=float(gaps.mean()),
         gap_median=float(np.median(gaps)),
+        abs_gap_mean=float(np.abs(gaps).mean()),
+        return_range=float(return_all.max() - return_all.min()),
         correlation=float(np.corrcoef(q_all, return_all)[0, 1]) if q_all.std() and return_all.std() else None,
     )

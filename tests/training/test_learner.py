@@ -339,7 +339,7 @@ def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(
     run, out = tmp_path / "run", tmp_path / "published"
     train(tiny(), run, show_progress=False)
     assert (run / REPLAY_FILE).is_file()
-    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560), tmp_path) == 0
+    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=True, total_steps=560), tmp_path) == 0
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
     assert "its saved replay buffer was stored under other reward, success_ends_transitions" in note
     assert "evaluated anew" not in note  # same scenarios: the best carries on
@@ -572,6 +572,18 @@ def test_value_check_compares_q_with_the_discounted_return_that_follows():
     assert check.return_mean == pytest.approx(returns.mean())
     assert check.gap_mean == pytest.approx(7.0 - returns.mean())
     assert check.correlation is None  # a constant Q correlates with nothing
+
+
+def test_an_exploring_value_check_follows_the_episode_its_random_actions_make():
+    from training.values import value_check
+
+    scenario = Scenario.preset("small-11").replace(max_steps=5)
+    greedy = value_check(ConstantQ(), tiny(), scenario, episodes=1, seed=3)
+    exploring = value_check(ConstantQ(), tiny(), scenario, episodes=1, seed=3, epsilon=1.0)
+    again = value_check(ConstantQ(), tiny(), scenario, episodes=1, seed=3, epsilon=1.0)
+    assert (greedy.epsilon, exploring.epsilon) == (0.0, 1.0)
+    assert exploring.return_mean != greedy.return_mean  # other actions, another episode
+    assert again == exploring  # the same seed draws the same actions
 
 
 def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp_path, capsys):

@@ -143,6 +143,13 @@ class TargetSelection(nn.Module):
         return self.norm(context + attended), weights
 
 
+def float32_output(layer: nn.Linear, features: torch.Tensor) -> torch.Tensor:
+    """`layer` of `features` in float32 even under autocast (Config.bf16): the values a loss
+    compares keep float32's precision, whatever precision the body ran in."""
+    with torch.autocast(features.device.type, enabled=False):
+        return layer(features.float())
+
+
 class IQNHead(nn.Module):
     """Implicit quantile head (Dabney et al. 2018, as in paper IV-B).
 
@@ -167,7 +174,7 @@ class IQNHead(nn.Module):
         cosines = torch.cos(taus.unsqueeze(-1) * self.frequencies)
         embedding = torch.relu(self.cosine(cosines))
         mixed = features.unsqueeze(1) * embedding
-        return self.out(self.norm(torch.relu(self.hidden(mixed))))
+        return float32_output(self.out, self.norm(torch.relu(self.hidden(mixed))))
 
 
 class QHead(nn.Module):
@@ -179,7 +186,7 @@ class QHead(nn.Module):
 
     def forward(self, features: torch.Tensor, taus: torch.Tensor | None = None) -> torch.Tensor:
         """features [B, H], taus ignored -> Q-values [B, 1, A]."""
-        return self.out(features).unsqueeze(1)
+        return float32_output(self.out, features).unsqueeze(1)
 
 
 def fixed_fractions(

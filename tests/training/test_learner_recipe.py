@@ -1,0 +1,194 @@
+"""The learner's recipe (docs/training.md, "Values that track the returns"): updates that cost
+what the batch's entities cost (trimmed padding, bf16), rewards taught on a scale where the
+loss works, survivors bootstrapped as the published trainer does, and the bar values must meet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import World
+from training.buffer import ReplayBuffer, trim_padding
+from training.config import Config, ConfigError
+from training.networks import network_classes
+from training.train import (
+    UPDATE_MODES, TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_rewards, td_loss,
+    time_updates,
+)
+from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
+
+
+def tiny(**changes) -> Config:
+    return Config(model="terl", hidden=16, layers=1, heads=2, dropout=0.0, batch_size=64).replace(**changes)
+
+
+def curriculum_buffer(config: Config, steps: int = 12) -> ReplayBuffer:
+    """A buffer of 20 evader slots holding transitions of curriculum stage 1 (3 pursuers, 1
+    evader) and of small-15, as a run's buffer holds several stages."""
+    model = build_learner(config)[0]
+    rng = np.random.default_rng(0)
+    buffer = ReplayBuffer(4_000, evader_slots=20)
+    for name in ("curriculum-1", "small-15"):
+        scenario = Scenario.preset(name)
+        rollout = Rollout(World(scenario, 2, seed=1))
+        store = TransitionStore(buffer, config, 2 * scenario.pursuers)
+        for _ in range(steps):
+            turn = rollout.turn()
+            states = turn.observation.rows(turn.rows).as_inputs()
+            step = rollout.step(epsilon_greedy(model, states, 0.5, rng))
+            store.add(turn.rows, states, step.actions, step.observation, step.result, rng)
+    return buffer
+
+
+# ---------------------------------------------------------------- trimmed padding
+def test_trimming_cuts_each_group_after_its_last_slot_valid_in_any_row():
+    rows = 2
+    inputs = {
+        "ego": np.zeros((rows, 4), np.float32),
+        "teammates": np.arange(rows * 5 * 7, dtype=np.float32).reshape(rows, 5, 7),
+        "evaders": np.ones((rows, 8, 7), np.float32),
+        "obstacles": np.ones((rows, 5, 5), np.float32),
+        "mask": np.zeros((rows, 19), bool),
+    }
+    inputs["mask"][:, 0] = True
+    inputs["mask"][0, 1:3] = True  # row 0: teammates 0-1
+    inputs["mask"][1, 1:4] = True  # row 1: teammates 0-2
+    inputs["mask"][1, 6 + 4] = True  # row 1: evader 4 (a gap before it stays)
+    trimmed = trim_padding(inputs)
+    assert trimmed["teammates"].shape == (rows, 3, 7) and (trimmed["teammates"] == inputs["teammates"][:, :3]).all()
+    assert trimmed["evaders"].shape == (rows, 5, 7)
+    assert trimmed["obstacles"].shape == (rows, 1, 5)  # none valid: one empty slot stays
+    expected_mask = np.concatenate(
+        [inputs["mask"][:, :1], inputs["mask"][:, 1:4], inputs["mask"][:, 6:11], inputs["mask"][:, 14:15]], axis=1
+    )
+    assert (trimmed["mask"] == expected_mask).all()
+    assert trimmed["ego"] is inputs["ego"]
+
+
+@pytest.mark.parametrize("model", sorted(network_classes()))
+def test_a_trimmed_batch_gives_the_loss_of_the_full_one(model):
+    config = tiny(model=model, double_dqn=True)
+    online, target, _ = build_learner(config)
+    buffer = curriculum_buffer(config)
+    batch = buffer.sample(64, np.random.default_rng(3))
+    assert trim_padding(batch.observations)["mask"].shape[1] < batch.observations["mask"].shape[1]
+    losses = []
+    for trim in (False, True):
+        torch.manual_seed(7)  # the same quantile fractions for both
+        losses.append(td_loss(online, target, batch, config, trim).item())
+    assert losses[1] == pytest.approx(losses[0], rel=1e-5, abs=1e-6)
+
+
+def test_greedy_actions_of_trimmed_states_are_those_of_the_full_states():
+    config = tiny()
+    model = build_learner(config)[0]
+    batch = curriculum_buffer(config).sample(128, np.random.default_rng(4))
+    model.eval()
+    with torch.inference_mode():
+        full = model.q_values(*as_tensors(batch.observations)).argmax(dim=1).numpy()
+    assert (greedy_actions(model, batch.observations) == full).all()
+
+
+# ---------------------------------------------------------------- bf16
+def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
+    config = tiny()
+    online, target, _ = build_learner(config)
+    batch = curriculum_buffer(config).sample(64, np.random.default_rng(5))
+    losses = {}
+    for bf16 in (False, True):
+        torch.manual_seed(7)
+        losses[bf16] = td_loss(online, target, batch, config.replace(bf16=bf16))
+    assert losses[True].dtype == torch.float32
+    assert losses[True].item() == pytest.approx(losses[False].item(), rel=0.05)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        quantiles = online(*(torch.from_numpy(batch.observations[key]) for key in
+                             ("ego", "teammates", "evaders", "obstacles", "mask")), torch.rand(64, 8)).quantiles
+    assert quantiles.dtype == torch.float32
+
+
+def test_update_timing_runs_every_mode():
+    config = tiny()
+    online, target, optimizer = build_learner(config)
+    rates = time_updates(online, target, optimizer, curriculum_buffer(config), config, np.random.default_rng(0), 0.0)
+    assert set(rates) == set(UPDATE_MODES) and all(rate > 0 for rate in rates.values())
+
+
+# ---------------------------------------------------------------- what a step teaches
+def first_step(scenario: str = "curriculum-1"):
+    """(turn, step) of the first step of one world, every pursuer taking action 0."""
+    rollout = Rollout(World(Scenario.preset(scenario), 1, seed=5))
+    turn = rollout.turn()
+    return turn, rollout.step(np.zeros(len(turn.rows), np.int64))
+
+
+def test_the_reward_scale_multiplies_every_taught_reward_and_the_collision_value():
+    turn, step = first_step("small-11")
+    step.result.collided[0, 0] = True
+    taught = {}
+    for scale in (1.0, 0.05):
+        config = tiny(reward_scale=scale, collision_value=-100.0, gamma=0.9)
+        taught[scale] = taught_rewards(step.result, turn.rows, np.zeros(len(turn.rows)), config)[0]
+    assert taught[0.05] == pytest.approx(0.05 * taught[1.0])
+    assert taught[1.0][0] == pytest.approx(step.result.reward[0, 0] - 90.0)
+    with pytest.raises(ConfigError, match="reward_scale: must be > 0"):
+        tiny(reward_scale=0.0)
+
+
+@pytest.mark.parametrize("cause", ["too few pursuers", "every evader encircled"])
+def test_survivors_of_a_terminated_episode_are_bootstrapped_as_the_published_trainer_does(cause):
+    # Stage 1: 3 pursuers. Pursuer 0 crashes and the episode terminates (fewer than 3 left),
+    # or all evaders are encircled in this step.
+    turn, step = first_step()
+    step.result.terminated[0] = True
+    if cause == "too few pursuers":
+        step.result.collided[0, 0] = True
+    potential = np.zeros(len(turn.rows))
+    _, terminal, stops = taught_rewards(step.result, turn.rows, potential, tiny())
+    assert list(terminal) == [cause == "too few pursuers", False, False]  # only a crash ends its own transition
+    assert stops.all()  # every pursuer's episode stops: n-step windows flush here
+    _, terminal, _ = taught_rewards(step.result, turn.rows, potential, tiny(success_ends_transitions=True))
+    assert terminal.all()
+    # Into the buffer: the survivors' transitions bootstrap from the state the episode ended in.
+    buffer = ReplayBuffer(10, Scenario.preset("curriculum-1").evader_slots)
+    store = TransitionStore(buffer, tiny(), 3)
+    states = turn.observation.rows(turn.rows).as_inputs()
+    store.add(turn.rows, states, step.actions, step.observation, step.result, np.random.default_rng(0))
+    assert list(buffer.dones[:3]) == [cause == "too few pursuers", False, False]
+
+
+# ---------------------------------------------------------------- the values' bar
+def check(correlation: float | None, abs_gap: float, return_range: float) -> ValueCheck:
+    return ValueCheck("small-15", 4, 100, 0.0, 0.0, 0.0, 0.0, 0.0, abs_gap, return_range, correlation)
+
+
+def test_values_track_the_returns_only_when_correlated_and_close():
+    assert check(MIN_CORRELATION, 0.99 * MAX_GAP_SHARE * 20.0, 20.0).tracks_returns
+    assert not check(MIN_CORRELATION - 0.01, 0.5, 20.0).tracks_returns
+    assert not check(0.9, MAX_GAP_SHARE * 20.0, 20.0).tracks_returns
+    assert not check(None, 0.0, 0.0).tracks_returns
+
+
+# ---------------------------------------------------------------- the acting network
+def test_an_actor_never_refreshed_acts_as_the_first_network_does(tmp_path):
+    from training.train import REPLAY_FILE, train
+
+    runs = {
+        # the online network acts, and learns too slowly to change (its weights stay the first ones)
+        "online": tiny(learning_rate=1e-30),
+        # a copy acts, never refreshed in the run, while the online network learns
+        "actor": tiny(actor_update_frequency=10**9),
+    }
+    actions = {}
+    for name, config in runs.items():
+        config = config.replace(total_steps=320, num_envs=4, learning_starts=64, batch_size=32, eval_frequency=0,
+                                log_frequency=160, checkpoint_frequency=320, buffer_size=5_000)
+        train(config, tmp_path / name, show_progress=False)
+        buffer = ReplayBuffer(5_000, Scenario.preset("curriculum-1").evader_slots)
+        buffer.load(tmp_path / name / REPLAY_FILE)
+        actions[name] = buffer.actions[: len(buffer)].copy()
+    assert len(actions["actor"]) > 0 and (actions["actor"] == actions["online"]).all()
+    with pytest.raises(ConfigError, match="actor_update_frequency: must be >= 0"):
+        tiny(actor_update_frequency=-1)
