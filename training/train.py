@@ -155,9 +155,14 @@ def epsilon_greedy(
 ) -> np.ndarray:
     """Action indices [R] for the rows' states [R, ...]: greedy in one batched forward,
     each row replaced by a uniformly random action with probability `epsilon`."""
-    chosen = greedy_actions(model, states)
-    explore = rng.random(len(chosen)) < epsilon
-    chosen[explore] = rng.integers(0, NUM_PURSUER_ACTIONS, int(explore.sum()))
+    return explore(greedy_actions(model, states), epsilon, rng)
+
+
+def explore(chosen: np.ndarray, epsilon: float, rng: np.random.Generator) -> np.ndarray:
+    """The action indices `chosen` [R], each replaced in place by a uniformly random action
+    with probability `epsilon`; returns them."""
+    random = rng.random(len(chosen)) < epsilon
+    chosen[random] = rng.integers(0, NUM_PURSUER_ACTIONS, int(random.sum()))
     return chosen
 
 
@@ -750,7 +755,7 @@ class Throughput:
     rollout_steps_per_second: dict[str, float]
     """per scenario: environment steps/s of collect + store (no learning), random weights."""
     update_modes: dict[str, dict[str, float]]
-    """per scenario, per UPDATES_MODES entry: gradient updates/s at config.batch_size (sample,
+    """per scenario, per UPDATE_MODES entry: gradient updates/s at config.batch_size (sample,
     forward, backward, Adam step) on a buffer of that scenario's transitions."""
     mix_updates_per_second: dict[str, float]
     """per UPDATE_MODES entry: updates/s over the run's mix of scenarios (each scenario's share

@@ -22,7 +22,7 @@ from terl_rt.sim.world import World
 from training.buffer import trim_padding
 from training.config import Config
 from training.networks import QNetwork
-from training.train import as_tensors, taught_rewards
+from training.train import as_tensors, explore, taught_rewards
 
 
 MIN_CORRELATION = 0.5
@@ -83,9 +83,7 @@ def value_check(
         turn = rollout.turn()
         with torch.inference_mode():
             q_values = model.q_values(*as_tensors(trim_padding(turn.observation.rows(turn.rows).as_inputs()))).numpy()
-        actions = q_values.argmax(axis=1)
-        explore = rng.random(len(actions)) < epsilon
-        actions[explore] = rng.integers(0, q_values.shape[1], int(explore.sum()))
+        actions = explore(q_values.argmax(axis=1), epsilon, rng)
         step = rollout.step(actions)
         first = ~ended[turn.rows // num_pursuers]  # rows of worlds still in their first episode
         rows = turn.rows[first]

@@ -104,8 +104,7 @@ def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
     assert losses[True].dtype == torch.float32
     assert losses[True].item() == pytest.approx(losses[False].item(), rel=0.05)
     with torch.autocast("cpu", dtype=torch.bfloat16):
-        quantiles = online(*(torch.from_numpy(batch.observations[key]) for key in
-                             ("ego", "teammates", "evaders", "obstacles", "mask")), torch.rand(64, 8)).quantiles
+        quantiles = online(*as_tensors(batch.observations), torch.rand(64, 8)).quantiles
     assert quantiles.dtype == torch.float32
 
 
