@@ -30,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from terl_rt.extras import install_hint
+
 try:
     from gymnasium import spaces
     from pettingzoo import ParallelEnv
 except ImportError as error:  # pragma: no cover - exercised without the extra
     raise ImportError(
-        "terl_rt.envs needs the pettingzoo extra: pip install -e '.[pettingzoo]' (from the terl-rt checkout)"
+        f"terl_rt.envs needs the pettingzoo extra: {install_hint('pettingzoo')}"
     ) from error
 
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS

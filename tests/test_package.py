@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+import terl_rt
 from terl_rt import Scenario
 from terl_rt.cli.options import packaged_policy_path
 
@@ -34,7 +35,7 @@ def installed(tmp_path_factory) -> Path:
     # (build/, *.egg-info) in the checkout and no stale build output slips in.
     source = folder / "source"
     source.mkdir()
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("pyproject.toml", "README.md", "LICENSE", "CITATION.cff"):
         shutil.copy(ROOT / name, source / name)
     shutil.copytree(ROOT / "terl_rt", source / "terl_rt", ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(ROOT / "training", source / "training", ignore=shutil.ignore_patterns("__pycache__"))
@@ -56,6 +57,34 @@ def test_the_wheel_holds_the_runtime_and_its_policy_but_no_training_module(insta
     assert top_level == {"terl_rt"}, top_level
     assert (installed / "terl_rt" / "policy" / "default" / "terl.onnx").is_file()
     assert (installed / "terl_rt" / "policy" / "default" / "terl.md").is_file()
+
+
+def test_the_wheel_carries_the_license_citation_type_marker_and_foxglove_layout(installed):
+    info = next(installed.glob("terl_rt-*.dist-info"))
+    licenses = {path.name for path in (info / "licenses").iterdir()}
+    assert licenses == {"LICENSE", "CITATION.cff"}, licenses
+    assert (installed / "terl_rt" / "py.typed").is_file()
+    assert json.loads((installed / "terl_rt" / "logs" / "foxglove-layout.json").read_text())["configById"]
+
+
+def test_the_wheel_metadata_names_version_urls_and_classifiers(installed):
+    metadata = (next(installed.glob("terl_rt-*.dist-info")) / "METADATA").read_text()
+    assert f"Version: {terl_rt.__version__}" in metadata
+    for field in ("Author: the terl-rt developers", "Project-URL: Paper, https://arxiv.org/abs/2503.12395",
+                  "Classifier: Typing :: Typed", "Keywords:", "License-Expression: MIT"):
+        assert field in metadata, field
+
+
+def test_python_m_terl_rt_prints_the_version():
+    run = subprocess.run([sys.executable, "-m", "terl_rt", "--version"], cwd=ROOT, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == f"terl-rt, version {terl_rt.__version__}"
+
+
+def test_citation_cff_cites_the_paper_and_matches_the_version():
+    text = (ROOT / "CITATION.cff").read_text()
+    assert f"version: {terl_rt.__version__}" in text
+    assert "arXiv:2503.12395" in text and "preferred-citation:" in text
 
 
 def test_the_installed_terl_rt_evaluates_from_another_folder(installed, tmp_path):

@@ -131,7 +131,7 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
     both see the same load on the machine. Prints episodes per second of the best round,
     the time to start Ray (not in the run time), Ray's run time over the local one, and
     whether every episode came out the same. Every worker runs its policy on one
-    onnxruntime thread (a local run in this process too). Needs Ray: pip install -e '.[ray]'."""
+    onnxruntime thread (a local run in this process too). Needs Ray: pip install 'terl-rt[ray]'."""
     policy = open_policy(policy_path, threads=1)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = []

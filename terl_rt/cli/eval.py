@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import csv
-import importlib.metadata
 import json
 from pathlib import Path
 
 import click
 
+import terl_rt
 from terl_rt.cli.options import (
     address_option,
     backend_option,
@@ -61,11 +61,8 @@ def _row(result: ScenarioResult) -> str:
 
 
 def terl_rt_version() -> str:
-    """The installed terl-rt's version ("unknown" when run from a bare checkout)."""
-    try:
-        return importlib.metadata.version("terl-rt")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
+    """The running terl-rt's version (`terl_rt.__version__`)."""
+    return terl_rt.__version__
 
 
 def policy_version(info: dict) -> dict:

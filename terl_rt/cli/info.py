@@ -17,7 +17,7 @@ from terl_rt.policy.onnx_policy import check_contract
 @json_option
 def info(policy: str, as_json: bool) -> None:
     """Show an ONNX policy's metadata, inputs, outputs and the check against the
-    exported-policy contract (docs/policy.md section 3). Exit status 2 when the contract
+    exported-policy contract (the terl-rt repository's docs/policy.md section 3). Exit status 2 when the contract
     refuses the model (the report is printed first)."""
     path = Path(policy)
     report = check_contract(path)  # FileNotFoundError / ContractError for unreadable files

@@ -6,9 +6,11 @@ import logging
 
 import click
 
+import terl_rt
 from terl_rt.cli.bench import bench
 from terl_rt.cli.eval import eval_command
 from terl_rt.cli.info import info
+from terl_rt.cli.layout import layout_command
 from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
@@ -68,7 +70,7 @@ def one_line(err: BaseException) -> str:
 @click.group(cls=TerlGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--debug", is_flag=True, help="Show full tracebacks and debug logging.")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
-@click.version_option(package_name="terl-rt")
+@click.version_option(terl_rt.__version__, prog_name="terl-rt")
 @click.pass_context
 def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
     """terl-rt: simulate, evaluate and inspect TERL multi-target encirclement policies.
@@ -84,6 +86,7 @@ def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
 cli.add_command(bench)
 cli.add_command(eval_command)
 cli.add_command(info)
+cli.add_command(layout_command)
 cli.add_command(render_command)
 cli.add_command(replay)
 cli.add_command(report_command)

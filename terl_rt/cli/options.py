@@ -179,7 +179,8 @@ scenarios_option = click.option(
 )
 scenario_file_option = click.option(
     "--scenario-file", type=str, default=None, metavar="FILE",
-    help="A JSON scenario file (docs/world.md section 12) instead of presets.",
+    help="A JSON scenario file instead of presets: the form `terl-rt scenarios --json` prints for each preset "
+    "(the terl-rt repository's docs/world.md section 12).",
 )
 suite_option = click.option(
     "--suite", type=click.Choice(["paper"]), default=None,
@@ -221,7 +222,7 @@ workers_option = click.option(
 backend_option = click.option(
     "--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
     help="Where the episodes run: local (this machine) or ray (Ray tasks: a local Ray instance, "
-    "or the cluster at --address; pip install -e '.[ray]'). Results and logs are the same.",
+    "or the cluster at --address; pip install 'terl-rt[ray]'). Results and logs are the same.",
 )
 address_option = click.option(
     "--address", type=str, default=None, metavar="ADDR",

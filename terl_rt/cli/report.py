@@ -98,7 +98,7 @@ def command_line(
 @address_option
 @threads_option
 @click.option(
-    "--out", type=str, default="docs", show_default=True, metavar="DIR",
+    "--out", type=str, default="report", show_default=True, metavar="DIR",
     help="Folder to write results.md and results.png to (made if missing).",
 )
 @json_option
@@ -110,7 +110,7 @@ def report_command(
     the released small-scale config's, and write DIR/results.md (a row per preset and per
     scale group beside the paper's TERL numbers, and which of the paper's goals are met)
     and DIR/results.png (success rate, travel time and collision ratio against the
-    number of pursuers). The figure needs matplotlib: pip install -e '.[report]'. A
+    number of pursuers). The figure needs matplotlib: pip install 'terl-rt[report]'. A
     progress bar goes to stderr. Existing results files (the shipped docs/results.*
     included) are replaced only with --force, and only once both new files are complete.
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend
+from terl_rt.extras import install_hint
 
 BACKENDS = ("local", "ray")
-RAY_INSTALL_HINT = "pip install -e '.[ray]'"
+RAY_INSTALL_HINT = install_hint("ray")
 
 
 class RayMissing(ImportError):

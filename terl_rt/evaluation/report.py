@@ -8,7 +8,7 @@ collision ratio against the number of pursuers). `plot_comparison` draws that fi
 for several methods at once, for `terl_rt.evaluation.comparison`, which shares the
 helpers below (group summaries and the wording of intervals, run settings and caveats).
 
-matplotlib draws the figure; it is an optional extra (`pip install -e '.[report]'`),
+matplotlib draws the figure; it is an optional extra (`pip install 'terl-rt[report]'`),
 imported only when a figure is drawn.
 """
 
@@ -37,6 +37,7 @@ from terl_rt.evaluation.paper import (
     paper_group,
     scale_group,
 )
+from terl_rt.extras import install_hint
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
 from terl_rt.sim.scenario import PAPER_SUITE, PRESETS, PUBLISHED_SMALL_SUITE
 
@@ -46,7 +47,7 @@ PAPER_EPISODES = 20
 """Episodes a scenario in the paper's evaluation."""
 PAPER_MAX_STEPS = 1000
 """Step limit of the paper's evaluation episodes (world.md section 10)."""
-INSTALL_HINT = "pip install -e '.[report]'"
+INSTALL_HINT = install_hint("report")
 REPORT_SUITE: tuple[str, ...] = PAPER_SUITE[:3] + PUBLISHED_SMALL_SUITE + PAPER_SUITE[3:]
 """The presets `terl-rt report` evaluates by default: the paper's 10, with the released
 small-scale config after the table's small presets."""

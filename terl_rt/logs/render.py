@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from terl_rt.extras import install_hint
 from terl_rt.logs.foxglove import COLORS
 from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 
@@ -33,7 +34,7 @@ GIF_MAX_FRAMES = 200
 """With `every=None`, GIFs keep at most this many frames (every frame is held in memory)."""
 TRAIL_STEPS = 20
 """Steps (0.5 s each) of past positions drawn behind each robot."""
-VIDEO_INSTALL = "pip install -e '.[video]' (from the terl-rt checkout)"
+VIDEO_INSTALL = install_hint("video")
 
 GIF_COLORS = 64
 """Colours of the palette all frames of a GIF share."""

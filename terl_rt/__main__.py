@@ -1,0 +1,5 @@
+"""`python -m terl_rt ...`: the `terl-rt` command, for environments whose scripts folder is not on PATH."""
+
+from terl_rt.cli.main import cli
+
+cli(prog_name="terl-rt")
