@@ -1,4 +1,4 @@
-"""The /world scene for Foxglove: checked against Foxglove's own schema, and what is gone is deleted."""
+"""The /world scene for Foxglove: Foxglove's own protobuf message and schema, and what is gone is deleted."""
 
 from __future__ import annotations
 
@@ -7,17 +7,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 from onnx_models import write_test_policy
 
 from terl_rt import Scenario, Simulator
+from terl_rt.cli.layout import layout_bytes
 from terl_rt.evaluation.episodes import evaluate_policy
 from terl_rt.logs.format import TOPIC_WORLD
 from terl_rt.logs.foxglove import (
     DELETE_ALL,
     DELETE_MATCHING_ID,
-    SCENE_UPDATE_SCHEMA,
     entity_ids,
-    official_scene_update_schema,
+    scene_from_protobuf,
+    scene_protobuf,
     scene_update,
 )
 from terl_rt.logs.reader import EpisodeLogReader
@@ -88,41 +92,42 @@ def test_an_entity_that_disappears_is_deleted_by_id():
     assert same["deletions"] == []
 
 
-def test_every_world_message_validates_against_foxglove_s_own_schema(two_scenario_log):
-    jsonschema = pytest.importorskip("jsonschema")
-    pytest.importorskip("foxglove_schemas_protobuf")
-    validator = jsonschema.Draft202012Validator(official_scene_update_schema(strict=True))
-    count = 0
-    for episode in scenes(two_scenario_log):
-        for update in episode:
-            errors = sorted(validator.iter_errors(update), key=lambda e: list(e.path))
-            assert not errors, f"{list(errors[0].path)}: {errors[0].message}"
-            count += 1
-    assert count == 2 * 5
+def test_every_world_message_decodes_with_the_schema_the_log_embeds(two_scenario_log):
+    """A Foxglove-side reader (mcap's protobuf decoder, built from the log's own schema)
+    reads every /world message as the scene terl-rt wrote."""
+    written = [update for episode in scenes(two_scenario_log) for update in episode]
+    with open(two_scenario_log, "rb") as handle:
+        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
+        decoded = [message for _, channel, _, message in reader.iter_decoded_messages(topics=[TOPIC_WORLD])]
+    assert len(decoded) == len(written) == 2 * 5
+    assert {message.DESCRIPTOR.full_name for message in decoded} == {"foxglove.SceneUpdate"}
+    assert [scene_from_protobuf(message.SerializeToString()) for message in decoded] == written
 
 
-def test_the_schema_in_the_logs_has_foxglove_s_fields_and_types():
-    """SCENE_UPDATE_SCHEMA (embedded in every log) mirrors the official definition."""
-    pytest.importorskip("foxglove_schemas_protobuf")
-    official = official_scene_update_schema()
+def test_the_log_embeds_foxglove_s_published_scene_update_schema(two_scenario_log):
+    reader = EpisodeLogReader(two_scenario_log)
+    schema = next(s for s in reader.schemas.values() if s.name == "foxglove.SceneUpdate")
+    files = FileDescriptorSet.FromString(schema.data).file
+    assert schema.encoding == "protobuf"
+    assert {"foxglove/SceneUpdate.proto", "google/protobuf/timestamp.proto"} <= {f.name for f in files}
+    channel = next(c for c in reader.channels.values() if c.topic == TOPIC_WORLD)
+    assert channel.message_encoding == "protobuf"
 
-    def shape(schema: dict):
-        if "enum" in schema or "oneOf" in schema:
-            return "enum"
-        kind = schema.get("type")
-        if kind == "object":
-            return {name: shape(sub) for name, sub in schema["properties"].items()}
-        if kind == "array":
-            return [shape(schema["items"])]
-        return kind
 
-    assert shape(SCENE_UPDATE_SCHEMA) == shape(official)
-    jsonschema = pytest.importorskip("jsonschema")
-    jsonschema.Draft202012Validator.check_schema(SCENE_UPDATE_SCHEMA)
+def test_a_scene_survives_the_protobuf_round_trip_unchanged():
+    sim = Simulator(Scenario.preset("small-11"), seed=0)
+    sim.reset()
+    update = scene_update(sim.state(), (120.0, 120.0), 1_500_000_000, 0.5, 1.0, "status", previous_ids=["gone/0"])
+    assert scene_from_protobuf(scene_protobuf(update)) == update
+
+
+def test_a_scene_field_foxglove_does_not_define_is_refused():
+    with pytest.raises(ValueError, match=r"foxglove.SceneEntity has no field 'colour'"):
+        scene_protobuf({"entities": [{"id": "x", "colour": "red"}]})
 
 
 def test_the_layout_opens_the_topics_the_logs_write():
-    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    layout = json.loads(layout_bytes())
     text = json.dumps(layout)
     for topic in ("/world", "/rewards", "/target_weights", "/events"):
         assert topic in text, topic
@@ -131,3 +136,10 @@ def test_the_layout_opens_the_topics_the_logs_write():
     three_d = next(config for key, config in layout["configById"].items() if key.startswith("3D"))
     assert three_d["topics"]["/world"]["visible"] is True
     assert np.isclose(three_d["cameraState"]["phi"], 0.0)  # looking straight down
+
+
+def test_a_version_1_log_still_reads_its_json_world():
+    reader = EpisodeLogReader(ROOT / "tests" / "data" / "world-v1.mcap")
+    step = next(reader.steps(0))
+    assert not step.protobuf
+    assert "arena" in entity_ids(step.payload(TOPIC_WORLD))

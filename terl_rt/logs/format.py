@@ -11,9 +11,10 @@ Layout of a log (MCAP, one zstd chunk per step):
       Metadata "terl.episode_end" final metrics (missing when the run was interrupted)
     DataEnd, summary (schemas, channels, statistics, indexes), Footer, magic
 
-Topics (JSON messages; log time = episode start + step * 0.5 s, in ns):
+Topics (log time = episode start + step * 0.5 s, in ns):
 
-- `/world`: foxglove.SceneUpdate (terl_rt.logs.foxglove), the whole scene of the step;
+- `/world`: foxglove.SceneUpdate (terl_rt.logs.foxglove), the whole scene of the step, as
+  Foxglove's own protobuf message with its schema (version 1 logs: JSON);
 - `/state`: the world's public state (`terl_rt.sim.state.LOGGED_FIELDS`: `Simulator.state()`
   less the derived `pursuer_collided`), floats written with Python's repr, so they read
   back exactly;
@@ -23,6 +24,9 @@ Topics (JSON messages; log time = episode start + step * 0.5 s, in ns):
   target selection only);
 - `/rewards`: [N] rewards and their terms;
 - `/events`: captures, collisions and the episode's end, in steps that have any.
+
+Every topic but /world is JSON with a JSON Schema: Foxglove publishes no schema for
+them (its plots and message panels read JSON as they read protobuf).
 """
 
 from __future__ import annotations
@@ -34,14 +38,16 @@ from typing import Any
 
 import numpy as np
 
-from terl_rt.logs.foxglove import SCENE_UPDATE, SCENE_UPDATE_SCHEMA
+from terl_rt.logs.foxglove import SCENE_UPDATE, scene_update_schema
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.simulator import StepInfo
 from terl_rt.sim.state import LOGGED_FIELDS
 
 LOG_FORMAT = "terl-rt episode log"
-LOG_VERSION = "1"
-"""Version of the layout above; readers refuse other versions."""
+LOG_VERSION = "2"
+"""Version of the layout above, the one the writer writes."""
+READ_VERSIONS = ("1", "2")
+"""Versions the reader reads: 1 (/world as JSON) and 2 (/world as protobuf); it refuses others."""
 
 META_LOG = "terl.log"
 META_EPISODE = "terl.episode"
@@ -64,37 +70,55 @@ def encode(payload: Any) -> bytes:
     return json.dumps(payload, separators=(",", ":")).encode()
 
 
-def _object_schema(title: str, description: str, properties: Mapping[str, Any]) -> bytes:
-    return encode({"title": title, "description": description, "type": "object", "properties": dict(properties)})
+@dataclass(frozen=True)
+class TopicSchema:
+    """The schema of one topic's channel."""
+
+    name: str
+    """schema name, e.g. foxglove.SceneUpdate or terl.State."""
+    encoding: str
+    """MCAP schema encoding: "protobuf" (a FileDescriptorSet) or "jsonschema"."""
+    data: bytes
+    """the schema itself."""
+
+    @property
+    def message_encoding(self) -> str:
+        """MCAP message encoding of the channel: "protobuf" or "json"."""
+        return "protobuf" if self.encoding == "protobuf" else "json"
+
+
+def _object_schema(title: str, description: str, properties: Mapping[str, Any]) -> TopicSchema:
+    data = encode({"title": title, "description": description, "type": "object", "properties": dict(properties)})
+    return TopicSchema(title, "jsonschema", data)
 
 
 _NUMBERS = {"type": "array", "items": {"type": "number"}}
 _INTEGERS = {"type": "array", "items": {"type": "integer"}}
 _HEAD = {"episode": {"type": "integer"}, "step": {"type": "integer"}}
-SCHEMAS: dict[str, tuple[str, bytes]] = {
-    TOPIC_WORLD: (SCENE_UPDATE, encode(SCENE_UPDATE_SCHEMA)),
-    TOPIC_STATE: ("terl.State", _object_schema(
+SCHEMAS: dict[str, TopicSchema] = {
+    TOPIC_WORLD: TopicSchema(SCENE_UPDATE, "protobuf", scene_update_schema()),
+    TOPIC_STATE: _object_schema(
         "terl.State", "Full world state after the step (m, rad, m/s); floats are exact float64 reprs",
         {**_HEAD, **{f.key: {"type": "array"} for f in LOGGED_FIELDS if f.key not in _HEAD}},
-    )),
-    TOPIC_ACTIONS: ("terl.Actions", _object_schema(
+    ),
+    TOPIC_ACTIONS: _object_schema(
         "terl.Actions", "Actions of the step: pursuer [N] as fed to the simulator, evader [M]",
         {**_HEAD, "pursuer": _INTEGERS, "decided": _INTEGERS, "evader": _INTEGERS},
-    )),
-    TOPIC_TARGET_WEIGHTS: ("terl.TargetWeights", _object_schema(
+    ),
+    TOPIC_TARGET_WEIGHTS: _object_schema(
         "terl.TargetWeights", "Target weights [n, E] of the pursuers that decided the step",
         {**_HEAD, "pursuer": _INTEGERS, "weights": {"type": "array", "items": _NUMBERS}},
-    )),
-    TOPIC_REWARDS: ("terl.Rewards", _object_schema(
+    ),
+    TOPIC_REWARDS: _object_schema(
         "terl.Rewards", "Reward [N] of each pursuer in the step and its terms",
         {**_HEAD, "total": _NUMBERS, "terms": {"type": "object", "properties": {t: _NUMBERS for t in REWARD_TERMS}}},
-    )),
-    TOPIC_EVENTS: ("terl.Events", _object_schema(
+    ),
+    TOPIC_EVENTS: _object_schema(
         "terl.Events", "Captures, collisions and the episode end in the step",
         {**_HEAD, "events": {"type": "array", "items": {"type": "object"}}},
-    )),
+    ),
 }
-"""topic -> (schema name, JSON Schema bytes) of every channel of a log."""
+"""topic -> the schema of its channel, for every channel of a log."""
 TOPICS: tuple[str, ...] = tuple(SCHEMAS)
 """Every topic of a log."""
 

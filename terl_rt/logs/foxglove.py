@@ -1,4 +1,4 @@
-"""The world as a Foxglove `foxglove.SceneUpdate` (JSON encoding), for the 3-D panel.
+"""The world as a Foxglove `foxglove.SceneUpdate`, for the 3-D panel.
 
 One message holds the whole scene of one step; entity ids are stable across the
 steps of an episode, so each message replaces the previous one entity by entity:
@@ -18,27 +18,34 @@ what is gone: the first scene of an episode starts with a deletion of type ALL (
 previous episode may have had more robots, obstacles or vortices), and a later one
 deletes by id any entity of the previous scene it no longer holds (`previous_ids`).
 
-`SCENE_UPDATE_SCHEMA` is the JSON Schema of the message written into logs, written
-out from Foxglove's published field list; `official_scene_update_schema()` derives the
-schema from Foxglove's own published definition (the `foxglove-schemas-protobuf`
-package, in the dev extra), against which the tests check every logged scene and this
-hand-written copy.
+`scene_update` builds the scene as a JSON object of Foxglove's JSON encoding (what the
+renderer and the tests read); logs store it as Foxglove's own protobuf message
+(`scene_protobuf`, through the `foxglove-schemas-protobuf` package, whose schema the log
+embeds), and `scene_from_protobuf` turns it back into the same JSON object. Logs of
+version 1 hold the JSON object itself.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping
 
 import numpy as np
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf.descriptor import Descriptor
+from google.protobuf.message import Message
+from mcap_protobuf.schema import build_file_descriptor_set
 
 SCENE_UPDATE = "foxglove.SceneUpdate"
 """Schema name Foxglove recognises for scene updates."""
 FRAME_ID = "world"
 """Frame of every entity: the arena's, x east, y north, metres."""
 
-_PRECISION = 4
-"""decimals kept in the scene's coordinates (the exact state goes to /state)."""
+_GRID = 4096
+"""The scene's lengths and quaternions lie on a 1/4096 grid (0.24 mm; the exact state goes
+to /state): binary fractions leave the low bits of protobuf's doubles zero, so a step's
+zstd chunk holds /world in about 25 % less than unrounded doubles."""
 _HULL = (2.0, 1.0, 0.6)
 """m: pursuer hull drawn as a box (length, width, height); the disc radius stays the world's."""
 
@@ -56,177 +63,11 @@ COLORS: dict[str, tuple[float, float, float, float]] = {
 """RGBA in [0, 1] of each kind of entity (also used by the renderer)."""
 
 
-# --- JSON Schema ---------------------------------------------------------------
-
-
-def _number(description: str) -> dict:
-    return {"type": "number", "description": description}
-
-
-def _object(title: str, description: str, properties: Mapping[str, dict]) -> dict:
-    return {"title": title, "description": description, "type": "object", "properties": dict(properties)}
-
-
-def _array(items: dict, description: str) -> dict:
-    return {"type": "array", "items": items, "description": description}
-
-
-def _vector3(description: str) -> dict:
-    return _object(
-        "foxglove.Vector3", description,
-        {axis: _number(f"{axis} coordinate length") for axis in "xyz"},
-    )
-
-
-def _color(description: str) -> dict:
-    names = {"r": "Red", "g": "Green", "b": "Blue", "a": "Alpha"}
-    return _object(
-        "foxglove.Color", description,
-        {key: _number(f"{name} value between 0 and 1") for key, name in names.items()},
-    )
-
-
-def _pose(description: str) -> dict:
-    quaternion = _object(
-        "foxglove.Quaternion", "Quaternion denoting orientation in 3D space",
-        {axis: _number(f"{axis} value") for axis in "xyzw"},
-    )
-    return _object(
-        "foxglove.Pose", description,
-        {"position": _vector3("Point denoting position in 3D space"), "orientation": quaternion},
-    )
-
-
-def _time(title: str, description: str, signed: bool) -> dict:
-    sec = {"type": "integer"} if signed else {"type": "integer", "minimum": 0}
-    return {
-        "type": "object", "title": title, "description": description,
-        "properties": {"sec": sec, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
-    }
-
-
-def _point3() -> dict:
-    return _object(
-        "foxglove.Point3", "Point in 3D space",
-        {axis: _number(f"{axis} coordinate position") for axis in "xyz"},
-    )
-
-
-def _scene_update_schema() -> dict:
-    indices = {"type": "array", "items": {"type": "integer", "minimum": 0}}
-    primitives = {
-        "arrows": _object("foxglove.ArrowPrimitive", "A primitive representing an arrow", {
-            "pose": _pose("Position of the arrow's tail and orientation; identity points along +x"),
-            "shaft_length": _number("Length of the arrow shaft"),
-            "shaft_diameter": _number("Diameter of the arrow shaft"),
-            "head_length": _number("Length of the arrow head"),
-            "head_diameter": _number("Diameter of the arrow head"),
-            "color": _color("Color of the arrow"),
-        }),
-        "cubes": _object("foxglove.CubePrimitive", "A primitive representing a cube or rectangular prism", {
-            "pose": _pose("Position of the center of the cube and orientation of the cube"),
-            "size": _vector3("Size of the cube along each axis"),
-            "color": _color("Color of the cube"),
-        }),
-        "spheres": _object("foxglove.SpherePrimitive", "A primitive representing a sphere or ellipsoid", {
-            "pose": _pose("Position of the center of the sphere and orientation of the sphere"),
-            "size": _vector3("Size (diameter) of the sphere along each axis"),
-            "color": _color("Color of the sphere"),
-        }),
-        "cylinders": _object(
-            "foxglove.CylinderPrimitive", "A primitive representing a cylinder, elliptic cylinder, or truncated cone", {
-                "pose": _pose("Position of the center of the cylinder; flat faces perpendicular to z"),
-                "size": _vector3("Size of the cylinder's bounding box"),
-                "bottom_scale": _number("0-1, diameter of the bottom face relative to the bounding box"),
-                "top_scale": _number("0-1, diameter of the top face relative to the bounding box"),
-                "color": _color("Color of the cylinder"),
-            }),
-        "lines": _object("foxglove.LinePrimitive", "A primitive representing a series of points connected by lines", {
-            "type": {
-                "title": "foxglove.LineType", "description": "How the points are connected",
-                "oneOf": [
-                    {"title": "LINE_STRIP", "const": 0, "description": "0-1, 1-2, ..., (n-1)-n"},
-                    {"title": "LINE_LOOP", "const": 1, "description": "0-1, 1-2, ..., (n-1)-n, n-0"},
-                    {"title": "LINE_LIST", "const": 2, "description": "0-1, 2-3, 4-5, ..."},
-                ],
-            },
-            "pose": _pose("Origin of lines relative to reference frame"),
-            "thickness": _number("Width of the line"),
-            "scale_invariant": {"type": "boolean", "description": "Thickness in screen pixels (true) or world units (false)"},
-            "points": _array(_point3(), "Points along the line"),
-            "color": _color("Solid color to use for the whole line"),
-            "colors": _array(_color("Color"), "Per-point colors (overrides color)"),
-            "indices": {**indices, "description": "Indices into the points and colors attribute arrays"},
-        }),
-        "triangles": _object("foxglove.TriangleListPrimitive", "A primitive representing a set of triangles", {
-            "pose": _pose("Origin of triangles relative to reference frame"),
-            "points": _array(_point3(), "Vertices to use for triangles, interpreted as a list of triples"),
-            "color": _color("Solid color to use for the whole shape"),
-            "colors": _array(_color("Color"), "Per-vertex colors (overrides color)"),
-            "indices": {**indices, "description": "Indices into the points and colors attribute arrays"},
-        }),
-        "texts": _object("foxglove.TextPrimitive", "A primitive representing a text label", {
-            "pose": _pose("Position of the center of the text box and orientation of the text"),
-            "billboard": {"type": "boolean", "description": "Always face the camera (true) or respect the pose (false)"},
-            "font_size": _number("Font size (height of one line of text)"),
-            "scale_invariant": {"type": "boolean", "description": "font_size in screen pixels (true) or world units (false)"},
-            "color": _color("Color of the text"),
-            "text": {"type": "string", "description": "Text"},
-        }),
-        "models": _object("foxglove.ModelPrimitive", "A primitive representing a 3D model file", {
-            "pose": _pose("Origin of model relative to reference frame"),
-            "scale": _vector3("Scale factor to apply to the model along each axis"),
-            "color": _color("Solid color to use for the whole model if override_color is true"),
-            "override_color": {"type": "boolean", "description": "Whether to use the color instead of the model's own"},
-            "url": {"type": "string", "description": "URL pointing to model file"},
-            "media_type": {"type": "string", "description": "Media type of embedded model"},
-            "data": {"type": "string", "contentEncoding": "base64", "description": "Embedded model"},
-        }),
-    }
-    deletion = _object("foxglove.SceneEntityDeletion", "Command to remove previously published entities", {
-        "timestamp": _time("time", "Only matching entities earlier than this timestamp are deleted", signed=False),
-        "type": {
-            "title": "foxglove.SceneEntityDeletionType", "description": "Type of deletion action to perform",
-            "oneOf": [
-                {"title": "MATCHING_ID", "const": 0, "description": "Delete the entity on the same topic with this id"},
-                {"title": "ALL", "const": 1, "description": "Delete all entities on the same topic"},
-            ],
-        },
-        "id": {"type": "string", "description": "Identifier which must match if type is MATCHING_ID"},
-    })
-    key_value = _object("foxglove.KeyValuePair", "A key with its associated value", {
-        "key": {"type": "string", "description": "Key"},
-        "value": {"type": "string", "description": "Value"},
-    })
-    entity = _object(
-        "foxglove.SceneEntity",
-        "A visual element in a 3D scene; its primitives share one frame of reference",
-        {
-            "timestamp": _time("time", "Timestamp of the entity", signed=False),
-            "frame_id": {"type": "string", "description": "Frame of reference"},
-            "id": {"type": "string", "description": "Identifier; replaces any prior entity on the topic with this id"},
-            "lifetime": _time("duration", "Time after timestamp the entity is removed; zero keeps it", signed=True),
-            "frame_locked": {"type": "boolean", "description": "Follow frame_id as it moves (true) or stay in the fixed frame"},
-            "metadata": _array(key_value, "Additional user-provided metadata; keys must be unique"),
-            **{name: _array(item, f"{item['title'].split('.')[1]}s") for name, item in primitives.items()},
-        },
-    )
-    schema = _object(SCENE_UPDATE, "An update to the entities displayed in a 3D scene", {
-        "deletions": _array(deletion, "Scene entities to delete"),
-        "entities": _array(entity, "Scene entities to add or replace"),
-    })
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}
-
-
-SCENE_UPDATE_SCHEMA: dict = _scene_update_schema()
-"""JSON Schema of foxglove.SceneUpdate (JSON encoding)."""
-
-
 # --- building a scene ------------------------------------------------------------
 
 
 def _r(value: float) -> float:
-    return round(float(value), _PRECISION)
+    return round(float(value) * _GRID) / _GRID
 
 
 def _vec(x: float, y: float, z: float = 0.0) -> dict:
@@ -381,55 +222,82 @@ def entity_ids(update: Mapping) -> list[str]:
     return [entity["id"] for entity in update["entities"]]
 
 
-# --- Foxglove's own definition ------------------------------------------------------
+# --- Foxglove's protobuf messages ---------------------------------------------------
 
-_PROTO_SCALARS = {
-    "TYPE_DOUBLE": {"type": "number"}, "TYPE_FLOAT": {"type": "number"},
-    "TYPE_INT32": {"type": "integer"}, "TYPE_INT64": {"type": "integer"},
-    "TYPE_SINT32": {"type": "integer"}, "TYPE_SINT64": {"type": "integer"},
-    "TYPE_SFIXED32": {"type": "integer"}, "TYPE_SFIXED64": {"type": "integer"},
-    "TYPE_UINT32": {"type": "integer", "minimum": 0}, "TYPE_UINT64": {"type": "integer", "minimum": 0},
-    "TYPE_FIXED32": {"type": "integer", "minimum": 0}, "TYPE_FIXED64": {"type": "integer", "minimum": 0},
-    "TYPE_BOOL": {"type": "boolean"}, "TYPE_STRING": {"type": "string"},
-    "TYPE_BYTES": {"type": "string", "contentEncoding": "base64"},
-}
+_TIMES = ("google.protobuf.Timestamp", "google.protobuf.Duration")
+_SCALAR, _SCALARS, _TIME, _MESSAGE, _MESSAGES = range(5)
+"""How a field maps to JSON: a value, a list of values, {sec, nsec}, an object, a list of objects."""
 
 
-def official_scene_update_schema(strict: bool = True) -> dict:
-    """JSON Schema of foxglove.SceneUpdate derived from Foxglove's published definition
-    (`foxglove_schemas_protobuf`; raises ImportError without it), mapped to JSON the way
-    Foxglove's JSON encoding does: times and durations as {sec, nsec}, enums as their
-    numbers, bytes as base64 strings. strict: no property beyond the definition's."""
-    from google.protobuf.descriptor import FieldDescriptor
-    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+@functools.cache
+def _kinds(descriptor: Descriptor) -> dict[str, int]:
+    """field name -> how it maps to JSON, for a message type (looked up once per type)."""
+    kinds = {}
+    for field in descriptor.fields:
+        # protobuf >= 5 has is_repeated; older releases only the label.
+        repeated = field.is_repeated if hasattr(field, "is_repeated") else field.label == field.LABEL_REPEATED
+        if field.message_type is None:
+            kinds[field.name] = _SCALARS if repeated else _SCALAR
+        elif field.message_type.full_name in _TIMES:
+            kinds[field.name] = _TIME
+        else:
+            kinds[field.name] = _MESSAGES if repeated else _MESSAGE
+    return kinds
 
-    type_names = {value: name for name, value in vars(FieldDescriptor).items() if name.startswith("TYPE_")}
 
-    def time(signed: bool) -> dict:
-        sec = {"type": "integer"} if signed else {"type": "integer", "minimum": 0}
-        return {
-            "type": "object", "required": ["sec", "nsec"], "additionalProperties": not strict,
-            "properties": {"sec": sec, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
-        }
+def _fill(message: Message, value: Mapping) -> Message:
+    """Set `message`'s fields from a JSON object of Foxglove's JSON encoding ({sec, nsec}
+    times, enums as numbers); a key the message does not define is a ValueError."""
+    kinds = _kinds(message.DESCRIPTOR)
+    for name, item in value.items():
+        kind = kinds.get(name)
+        if kind is None:
+            raise ValueError(f"{message.DESCRIPTOR.full_name} has no field {name!r}")
+        if kind == _SCALAR:
+            setattr(message, name, item)
+        elif kind == _SCALARS:
+            getattr(message, name).extend(item)
+        elif kind == _TIME:
+            time = getattr(message, name)
+            time.seconds, time.nanos = item["sec"], item["nsec"]
+        elif kind == _MESSAGES:
+            field = getattr(message, name)
+            for element in item:
+                _fill(field.add(), element)
+        else:
+            _fill(getattr(message, name), item)
+    return message
 
-    def message(descriptor) -> dict:
-        if descriptor.full_name == "google.protobuf.Timestamp":
-            return time(signed=False)
-        if descriptor.full_name == "google.protobuf.Duration":
-            return time(signed=True)
-        properties = {}
-        for field in descriptor.fields:
-            if field.message_type is not None:
-                item = message(field.message_type)
-            elif field.enum_type is not None:
-                item = {"enum": [value.number for value in field.enum_type.values]}
-            else:
-                item = dict(_PROTO_SCALARS[type_names[field.type]])
-            repeated = field.is_repeated if hasattr(field, "is_repeated") else field.label == FieldDescriptor.LABEL_REPEATED
-            properties[field.name] = {"type": "array", "items": item} if repeated else item
-        return {
-            "title": descriptor.full_name, "type": "object", "properties": properties,
-            "additionalProperties": not strict,
-        }
 
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **message(SceneUpdate.DESCRIPTOR)}
+def _unfill(message: Message) -> dict:
+    """Every field of `message` (defaults included) as a JSON object: `_fill`'s inverse."""
+    out: dict = {}
+    for name, kind in _kinds(message.DESCRIPTOR).items():
+        item = getattr(message, name)
+        if kind == _SCALAR:
+            out[name] = item
+        elif kind == _SCALARS:
+            out[name] = list(item)
+        elif kind == _TIME:
+            out[name] = {"sec": item.seconds, "nsec": item.nanos}
+        elif kind == _MESSAGES:
+            out[name] = [_unfill(element) for element in item]
+        else:
+            out[name] = _unfill(item)
+    return out
+
+
+def scene_protobuf(update: Mapping) -> bytes:
+    """A scene built by `scene_update` serialised as Foxglove's foxglove.SceneUpdate protobuf."""
+    return _fill(SceneUpdate(), update).SerializeToString()
+
+
+def scene_from_protobuf(data: bytes) -> dict:
+    """A serialised foxglove.SceneUpdate as the JSON object `scene_update` builds."""
+    return _unfill(SceneUpdate.FromString(data))
+
+
+def scene_update_schema() -> bytes:
+    """The schema of /world in a log: Foxglove's foxglove.SceneUpdate as a serialised
+    FileDescriptorSet (MCAP's "protobuf" schema encoding), with every file it imports."""
+    return build_file_descriptor_set(SceneUpdate).SerializeToString()

@@ -29,7 +29,7 @@ from mcap.stream_reader import breakup_chunk
 
 from terl_rt.logs.format import (
     LOG_FORMAT,
-    LOG_VERSION,
+    READ_VERSIONS,
     META_EPISODE,
     META_EPISODE_END,
     META_LOG,
@@ -38,6 +38,7 @@ from terl_rt.logs.format import (
     TOPIC_STATE,
     EpisodeLogError,
 )
+from terl_rt.logs.foxglove import scene_from_protobuf
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario, ScenarioError
 from terl_rt.sim.state import LOGGED_FIELDS
@@ -71,23 +72,33 @@ class LoggedEpisode:
 
 
 class LoggedStep:
-    """One step of a logged episode: the raw JSON of each topic, decoded on demand."""
+    """One step of a logged episode: the raw message of each topic, decoded on demand."""
 
-    def __init__(self, episode: int, step: int, time_ns: int, messages: dict[str, bytes]):
+    def __init__(
+        self, episode: int, step: int, time_ns: int, messages: dict[str, bytes], protobuf: frozenset[str] = frozenset(),
+    ):
         self.episode = episode
         self.step = step
         self.time_ns = time_ns
         """log time of the step's messages (ns)."""
         self.messages = messages
-        """topic -> JSON bytes, for the topics present in this step."""
+        """topic -> message bytes (JSON, or protobuf for the topics in `protobuf`), for the
+        topics present in this step."""
+        self.protobuf = protobuf
+        """topics whose messages are protobuf (/world from log version 2 on)."""
 
     def __repr__(self) -> str:
         return f"LoggedStep(episode={self.episode}, step={self.step}, topics={sorted(self.messages)})"
 
     def payload(self, topic: str) -> dict | None:
-        """The decoded message of `topic`, or None when the step has none."""
+        """The decoded message of `topic` as a JSON object, or None when the step has none
+        (/world: the same object whether the log holds it as protobuf or as JSON)."""
         data = self.messages.get(topic)
-        return None if data is None else json.loads(data)
+        if data is None:
+            return None
+        if topic in self.protobuf:
+            return scene_from_protobuf(data)
+        return json.loads(data)
 
     @property
     def state(self) -> dict[str, np.ndarray]:
@@ -212,6 +223,10 @@ class EpisodeLogReader:
                 yield step
 
     # --- internals
+    def _protobuf_topics(self) -> frozenset[str]:
+        """The topics whose channels carry protobuf (only /world is ever written so)."""
+        return frozenset(c.topic for c in self.channels.values() if c.message_encoding == "protobuf")
+
     def _fail(self, message: str) -> EpisodeLogError:
         return EpisodeLogError(f"{self.path}: {message}")
 
@@ -288,9 +303,9 @@ class EpisodeLogReader:
             if record.name == META_LOG:
                 if data.get("format") != LOG_FORMAT:
                     raise self._fail(f"metadata 'terl.log' has format {data.get('format')!r}, expected {LOG_FORMAT!r}")
-                if data.get("version") != LOG_VERSION:
+                if data.get("version") not in READ_VERSIONS:
                     raise self._fail(
-                        f"episode log version {data.get('version')!r}; this terl-rt reads version {LOG_VERSION}"
+                        f"episode log version {data.get('version')!r}; this terl-rt reads versions {', '.join(READ_VERSIONS)}"
                     )
                 self.world_version = data.get("world", "1")
                 self.policy = {
@@ -360,7 +375,7 @@ class EpisodeLogReader:
                     raise self._fail(f"corrupt /state message in the chunk at byte {offset} ({what}): {error}") from None
         if head is None:
             raise self._fail(f"corrupt chunk at byte {offset} ({what}): it has no /state message")
-        return LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages)
+        return LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages, self._protobuf_topics())
 
     # --- complete files, through the MCAP library's reader and the summary's indexes
     def _read_indexed(self, handle) -> bool:
@@ -466,7 +481,7 @@ class EpisodeLogReader:
             messages = gathered[time_ns]
             try:
                 head = json.loads(messages[TOPIC_STATE])
-                step = LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages)
+                step = LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages, self._protobuf_topics())
             except (KeyError, ValueError, TypeError) as error:
                 raise self._fail(f"the /state message of episode {number} at log time {time_ns} is corrupt ({error!r})") from None
             if step.episode != number or step.step != expected:

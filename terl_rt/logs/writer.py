@@ -6,7 +6,6 @@ to the last complete step is on disk whatever happens next (Ctrl-C, a crash, a k
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import os
 import signal
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from terl_rt import __version__
 from terl_rt.logs.format import (
     LOG_FORMAT,
     LOG_VERSION,
@@ -36,7 +36,7 @@ from terl_rt.logs.format import (
     StepRecord,
     encode,
 )
-from terl_rt.logs.foxglove import entity_ids, scene_update
+from terl_rt.logs.foxglove import entity_ids, scene_protobuf, scene_update
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.state import LOGGED_FIELDS
@@ -46,13 +46,6 @@ _GAP_NS = 1_000_000_000
 """Log time left between the last step of an episode and the next episode's start."""
 _NO_CHUNK_LIMIT = 1 << 40
 """Chunk size the writer never reaches: chunks end only where a step ends."""
-
-
-def _version() -> str:
-    try:
-        return importlib.metadata.version("terl-rt")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 @contextmanager
@@ -133,19 +126,21 @@ class EpisodeLogWriter:
         """steps written so far, all episodes."""
         self._file = open(self.staging_path or self.path, "wb")
         self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
-        self._mcap.start(profile="", library=f"terl-rt {_version()}")
+        self._mcap.start(profile="", library=f"terl-rt {__version__}")
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
-        for topic, (name, schema) in SCHEMAS.items():
-            schema_id = self._mcap.register_schema(name=name, encoding="jsonschema", data=schema)
-            self._channels[topic] = self._mcap.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+        for topic, schema in SCHEMAS.items():
+            schema_id = self._mcap.register_schema(name=schema.name, encoding=schema.encoding, data=schema.data)
+            self._channels[topic] = self._mcap.register_channel(
+                topic=topic, message_encoding=schema.message_encoding, schema_id=schema_id,
+            )
             self._sequence[topic] = 0
         self._policy = {"policy": str(policy_info["name"]), "policy_sha256": str(policy_info["sha256"])}
         self._mcap.add_metadata(META_LOG, {
             "format": LOG_FORMAT,
             "version": LOG_VERSION,
             "world": WORLD_VERSION,
-            "terl_rt": _version(),
+            "terl_rt": __version__,
             **self._policy,
             "policy_path": str(policy_info.get("path", "")),
             "policy_metadata": json.dumps(dict(policy_info.get("metadata", {}))),
@@ -236,7 +231,7 @@ class EpisodeLogWriter:
                 messages.append((TOPIC_EVENTS, {**head, "events": events}))
         # /state last: its presence marks the step as complete for readers of other tools.
         messages.append((TOPIC_STATE, _state_payload(episode.number, state)))
-        encoded = [(topic, encode(payload)) for topic, payload in messages]
+        encoded = [(topic, scene_protobuf(payload) if topic == TOPIC_WORLD else encode(payload)) for topic, payload in messages]
 
         # From the first message to the flush the step is half in the chunk buffer: Ctrl-C
         # waits until the step is on disk, and any other interruption keeps close() from
