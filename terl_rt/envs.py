@@ -1,11 +1,15 @@
 """The world as a PettingZoo `ParallelEnv` (the `pettingzoo` extra: pettingzoo, gymnasium).
 
     from terl_rt.envs import parallel_env
-    env = parallel_env("small-15", seed=0)
+    env = parallel_env("small-15")
     observations, infos = env.reset(seed=0)
     while env.agents:
         actions = {agent: env.action_space(agent).sample() for agent in env.agents}
         observations, rewards, terminations, truncations, infos = env.step(actions)
+
+As PettingZoo's own environments: `parallel_env(...)` is the parallel API, `env(...)` the
+AEC API (agents act in turn; `parallel_to_aec` of it, order-enforced) and `raw_env(...)`
+the same without the order check.
 
 Agents are `pursuer_0` .. `pursuer_{N-1}`. Each observes a Dict of the ONNX contract's
 groups (docs/policy.md section 3): `ego` [4], `teammates` [5, 7], `evaders` [E, 7],
@@ -15,6 +19,15 @@ acts with one of 9 discrete actions. A pursuer that collides is terminated and l
 every remaining pursuer is terminated; the scenario's step limit truncates them.
 `infos[agent]` holds the reward terms of the step, the pursuer's index and, at the end,
 the episode's metrics.
+
+`state()` is the global state for centralised training (TorchRL, BenchMARL): one float32
+vector in `state_space`, the world's public state (`terl_rt.sim.state.LOGGED_FIELDS`, in
+that order, each flattened: positions as x, y pairs in m, headings in rad, speeds in m/s,
+active flags as 0/1, the step count last); `world_state()` gives the same as named arrays.
+
+Seeds follow `Simulator`: an int, a np.random.Generator (one draw gives the int) or None
+(fresh entropy); `reset(seed=...)` starts that seed's stream of episodes, `reset()` the
+next episode of the current one.
 
 The wrapper holds a one-environment `terl_rt.sim.world.World` and only translates
 between its arrays and PettingZoo's dicts: the rules live in the world alone, and the
@@ -34,7 +47,8 @@ from terl_rt.extras import install_hint
 
 try:
     from gymnasium import spaces
-    from pettingzoo import ParallelEnv
+    from pettingzoo import AECEnv, ParallelEnv
+    from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
 except ImportError as error:  # pragma: no cover - exercised without the extra
     raise ImportError(
         f"terl_rt.envs needs the pettingzoo extra: {install_hint('pettingzoo')}"
@@ -46,15 +60,15 @@ from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.observation import OBSTACLE_SLOTS, TEAMMATE_SLOTS, Observation
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
-from terl_rt.sim.state import snapshot
-from terl_rt.sim.world import World
+from terl_rt.sim.state import LOGGED_FIELDS, snapshot
+from terl_rt.sim.world import Seed, World
 
 RENDER_MODES = ("rgb_array",)
 
 
 def parallel_env(
     scenario: Scenario | str = "small-15",
-    seed: int | None = None,
+    seed: Seed = None,
     render_mode: str | None = None,
     evader_policy: EvaderPolicy | None = None,
     max_steps: int | None = None,
@@ -62,11 +76,24 @@ def parallel_env(
 ) -> TerlParallelEnv:
     """A PettingZoo ParallelEnv of `scenario` (a Scenario or a preset name).
 
-    seed: the episode stream's seed (None: 0) until `reset(seed=...)` picks another;
-    max_steps overrides the scenario's step limit; render_mode "rgb_array" makes
-    `render()` return an [H, W, 3] uint8 frame `render_size` px wide.
+    seed: the episode stream's seed until `reset(seed=...)` picks another (an int, a
+    np.random.Generator or None: fresh entropy, as `Simulator`); max_steps overrides the
+    scenario's step limit; render_mode "rgb_array" makes `render()` return an
+    [H, W, 3] uint8 frame `render_size` px wide.
     """
     return TerlParallelEnv(scenario, seed, render_mode, evader_policy, max_steps, render_size)
+
+
+def raw_env(**kwargs: Any) -> AECEnv:
+    """The AEC form of `parallel_env(**kwargs)` (pursuers act in turn), without PettingZoo's
+    order-enforcing wrapper."""
+    return parallel_to_aec_wrapper(parallel_env(**kwargs))
+
+
+def env(**kwargs: Any) -> AECEnv:
+    """The AEC form of `parallel_env(**kwargs)`, as PettingZoo's own `env()` constructors
+    return it: `parallel_to_aec`, with the order-enforcing wrapper."""
+    return parallel_to_aec(parallel_env(**kwargs))
 
 
 class TerlParallelEnv(ParallelEnv):
@@ -77,7 +104,7 @@ class TerlParallelEnv(ParallelEnv):
     def __init__(
         self,
         scenario: Scenario | str,
-        seed: int | None = None,
+        seed: Seed = None,
         render_mode: str | None = None,
         evader_policy: EvaderPolicy | None = None,
         max_steps: int | None = None,
@@ -95,8 +122,7 @@ class TerlParallelEnv(ParallelEnv):
         self.possible_agents = [f"pursuer_{i}" for i in range(scenario.pursuers)]
         self.agents: list[str] = []
         self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
-        self._world = World(scenario, num_envs=1, seed=0 if seed is None else int(seed), evader_policy=evader_policy)
-        self._seed = 0 if seed is None else int(seed)
+        self._world = World(scenario, num_envs=1, seed=seed, evader_policy=evader_policy)
         self._episodes = 0
         self._history: list[dict[str, np.ndarray]] = []
         slots = scenario.evader_slots
@@ -110,6 +136,8 @@ class TerlParallelEnv(ParallelEnv):
         self._action_space = spaces.Discrete(NUM_PURSUER_ACTIONS)
         self._observation_spaces = {agent: self._observation_space for agent in self.possible_agents}
         self._action_spaces = {agent: spaces.Discrete(NUM_PURSUER_ACTIONS) for agent in self.possible_agents}
+        self.state_space = spaces.Box(-np.inf, np.inf, (state_size(scenario),), np.float32)
+        """The space of `state()`: [S] float32, S = `state_size(scenario)`."""
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> spaces.Dict:
@@ -124,11 +152,12 @@ class TerlParallelEnv(ParallelEnv):
         return self._world
 
     # ------------------------------------------------------------------ episode
-    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
-        """Start an episode: the next of the stream, or the first of `seed`'s stream."""
+    def reset(self, seed: Seed = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode: the next of the stream, or the first of `seed`'s stream (an
+        int, or a np.random.Generator that gives one)."""
         if seed is not None:
-            self._seed, self._episodes = int(seed), 0
-        observation = self._world.reset(seed=None if seed is None else int(seed))
+            self._episodes = 0
+        observation = self._world.reset(seed=seed)
         self._episodes += 1
         self.agents = list(self.possible_agents)
         self._history = [snapshot(self._world.state, 0)] if self.render_mode else []
@@ -181,8 +210,14 @@ class TerlParallelEnv(ParallelEnv):
         """Success, travel time, collision ratio and counts of the episode so far."""
         return self._world.metrics(0)
 
-    def state(self) -> dict[str, np.ndarray]:
-        """Copies of the world's arrays, as `Simulator.state()`."""
+    def state(self) -> np.ndarray:
+        """The global state, [S] float32 in `state_space`: `world_state()`'s arrays of
+        LOGGED_FIELDS flattened in order (bools as 0/1)."""
+        named = self.world_state()
+        return np.concatenate([np.asarray(named[f.key], np.float32).ravel() for f in LOGGED_FIELDS])
+
+    def world_state(self) -> dict[str, np.ndarray]:
+        """Copies of the world's arrays by name, as `Simulator.state()`."""
         if self._world.state is None:
             raise RuntimeError("state: call reset() first")
         return snapshot(self._world.state, 0)
@@ -199,7 +234,7 @@ class TerlParallelEnv(ParallelEnv):
 
         finished = not self.agents and len(self._history) > 1
         episode = SimpleNamespace(
-            scenario=self.scenario, number=self._episodes - 1, seed=self._seed,
+            scenario=self.scenario, number=self._episodes - 1, seed=self._world.seed,
             metrics=self._world.metrics(0) if finished else None,
         )
         return np.asarray(draw_state(self._history, len(self._history) - 1, episode, self.render_size, final=finished))
@@ -215,3 +250,14 @@ class TerlParallelEnv(ParallelEnv):
             "obstacles": observation.obstacles[0, i],
             "mask": observation.mask[0, i],
         }
+
+
+def state_size(scenario: Scenario) -> int:
+    """S, the length of `TerlParallelEnv.state()` for `scenario`: each LOGGED_FIELDS array
+    of N pursuers, M evaders, O obstacles or V vortices (x, y pairs count twice), plus 1
+    for the step count."""
+    counts = {
+        "pursuer": scenario.pursuers, "evader": scenario.evaders,
+        "obstacle": scenario.obstacles, "vortex": scenario.vortices, "step": 1,
+    }
+    return sum(counts[f.key.split("_")[0]] * (2 if f.pairs else 1) for f in LOGGED_FIELDS)

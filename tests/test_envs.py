@@ -7,10 +7,13 @@ import pytest
 
 pytest.importorskip("pettingzoo")
 
-from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test  # noqa: E402
+from pettingzoo.utils.conversions import parallel_to_aec  # noqa: E402
 
 from terl_rt import Scenario, Simulator  # noqa: E402
-from terl_rt.envs import parallel_env  # noqa: E402
+from terl_rt.envs import env as aec_env  # noqa: E402
+from terl_rt.envs import parallel_env, raw_env, state_size  # noqa: E402
+from terl_rt.sim.state import LOGGED_FIELDS  # noqa: E402
 from terl_rt.sim.reward import REWARD_TERMS  # noqa: E402
 
 SHORT = Scenario.preset("small-11").replace(max_steps=40)
@@ -22,6 +25,57 @@ def test_pettingzoo_parallel_api_test():
 
 def test_pettingzoo_parallel_seed_test():
     parallel_seed_test(lambda: parallel_env(SHORT), num_cycles=50)
+
+
+# api_test advises Box or Discrete observations; ours are a Dict of the ONNX contract's groups.
+AEC_ADVICE = pytest.mark.filterwarnings("ignore:Observation:UserWarning")
+
+
+@AEC_ADVICE
+def test_pettingzoo_api_test_through_parallel_to_aec():
+    api_test(parallel_to_aec(parallel_env(SHORT, seed=0)), num_cycles=20)
+
+
+@AEC_ADVICE
+def test_env_and_raw_env_are_the_aec_forms_as_in_pettingzoo_s_own_envs():
+    api_test(aec_env(scenario=SHORT, seed=0), num_cycles=20)
+    raw = raw_env(scenario=SHORT, seed=0)
+    raw.reset(seed=0)
+    assert raw.agents == parallel_env(SHORT).possible_agents
+
+
+def test_state_is_one_float32_vector_in_state_space():
+    env = parallel_env(SHORT, seed=0)
+    env.reset(seed=0)
+    state = env.state()
+    assert env.state_space.contains(state)
+    # small-11: 11 pursuers, 3 evaders, 2 obstacles, 4 vortices; x, y pairs count twice.
+    n, m, o, v = SHORT.pursuers, SHORT.evaders, SHORT.obstacles, SHORT.vortices
+    assert state.shape == (state_size(SHORT),) == (n * 7 + m * 7 + o * 3 + v * 4 + 1,)
+    named = env.world_state()
+    np.testing.assert_array_equal(state[: 2 * n], named["pursuer_xy"].ravel().astype(np.float32))
+    assert state[-1] == named["step"] == 0
+    assert list(named) == [f.key for f in LOGGED_FIELDS] + ["pursuer_collided"]
+
+
+def test_no_seed_draws_fresh_entropy_as_the_simulator_does():
+    first = [parallel_env(SHORT).reset()[0]["pursuer_0"]["ego"] for _ in range(2)]
+    assert not np.array_equal(*first)
+    sims = [Simulator(SHORT, seed=None).reset().ego[0] for _ in range(2)]
+    assert not np.array_equal(*sims)
+
+
+def test_a_generator_seed_gives_the_episode_of_the_int_it_draws():
+    env = parallel_env(SHORT)
+    observations, _ = env.reset(seed=np.random.default_rng(5))
+    drawn = int(np.random.default_rng(5).integers(2**63))
+    np.testing.assert_array_equal(observations["pursuer_3"]["evaders"], Simulator(SHORT, seed=drawn).reset().evaders[3])
+
+
+@pytest.mark.parametrize("seed", [1.5, "7", True])
+def test_a_seed_that_is_not_an_int_or_a_generator_is_refused_by_name(seed):
+    with pytest.raises(TypeError, match=r"seed must be an int >= 0, a np.random.Generator or None, got"):
+        parallel_env(SHORT).reset(seed=seed)
 
 
 def test_agents_and_spaces_follow_the_contract():

@@ -12,7 +12,7 @@ from terl_rt.sim.observation import Observation
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.state import snapshot
-from terl_rt.sim.world import StepResult, World
+from terl_rt.sim.world import Seed, StepResult, World
 
 
 @dataclass(frozen=True)
@@ -55,15 +55,17 @@ class Simulator:
 
     Observations hold one row per active pursuer (`Observation.pursuer_index` says
     which); actions hold one index per pursuer, [N]. The same scenario, seed and
-    actions give the same episode, bit for bit.
+    actions give the same episode, bit for bit. `seed`: an int, a np.random.Generator
+    (one draw gives the int) or None (fresh entropy, as NumPy's default_rng(None)).
     """
 
-    def __init__(self, scenario: Scenario, seed: int = 0, evader_policy: EvaderPolicy | None = None) -> None:
+    def __init__(self, scenario: Scenario, seed: Seed = 0, evader_policy: EvaderPolicy | None = None) -> None:
         self.scenario = scenario
         self._world = World(scenario, num_envs=1, seed=seed, evader_policy=evader_policy)
 
-    def reset(self, seed: int | None = None) -> Observation:
-        """Start an episode (the next one of this seed's stream, or of `seed` when given)."""
+    def reset(self, seed: Seed = None) -> Observation:
+        """Start an episode (the next one of this seed's stream, or of `seed` when given:
+        an int, or a np.random.Generator that gives one)."""
         return self._active_rows(self._world.reset(seed=seed))
 
     def step(self, pursuer_actions: np.ndarray) -> tuple[Observation, StepInfo]:

@@ -95,18 +95,41 @@ def _initial_state(scenario: Scenario, placements: list[Placement]) -> WorldStat
     )
 
 
+Seed = int | np.integer | np.random.Generator | None
+"""What seeds a world: an int >= 0; a np.random.Generator, which gives the int (one draw);
+None, fresh entropy from the operating system (as NumPy's own default_rng(None))."""
+
+
+def seed_value(seed: Seed) -> int:
+    """The int a `Seed` stands for: the int itself, one draw of a Generator, or fresh
+    entropy for None. TypeError names anything else (a float, a string, a bool)."""
+    if seed is None:
+        return int(np.random.SeedSequence().entropy)
+    if isinstance(seed, np.random.Generator):
+        return int(seed.integers(2**63))
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+        if seed < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        return int(seed)
+    raise TypeError(
+        f"seed must be an int >= 0, a np.random.Generator or None, got {type(seed).__name__} {seed!r:.60}"
+    )
+
+
 class World:
     """B worlds of one scenario. Each owns a random generator spawned from `seed`.
 
     Environment b draws its episodes from `SeedSequence(seed).spawn(B)[b]`, so a
     `Simulator(scenario, seed)` replays environment 0 of any batch with that seed.
+    `seed` is a `Seed`: an int, a np.random.Generator (one draw gives the int) or None
+    (fresh entropy); `self.seed` is the int in force.
     """
 
     def __init__(
         self,
         scenario: Scenario,
         num_envs: int = 1,
-        seed: int = 0,
+        seed: Seed = 0,
         evader_policy: EvaderPolicy | None = None,
     ) -> None:
         if num_envs < 1:
@@ -124,12 +147,14 @@ class World:
         self.done = np.ones(num_envs, bool)
         """[B] bool: environments whose episode ended (or never started); reset them."""
 
-    def _seed(self, seed: int) -> None:
-        children = np.random.SeedSequence(seed).spawn(self.num_envs)
+    def _seed(self, seed: Seed) -> None:
+        self.seed = seed_value(seed)
+        """the int that seeds the environments' generators now."""
+        children = np.random.SeedSequence(self.seed).spawn(self.num_envs)
         self._rngs = [np.random.default_rng(child) for child in children]
 
     # ------------------------------------------------------------------ reset
-    def reset(self, env_mask: np.ndarray | None = None, seed: int | None = None) -> Observation:
+    def reset(self, env_mask: np.ndarray | None = None, seed: Seed = None) -> Observation:
         """Start new episodes in the environments of `env_mask` ([B] bool; None = all).
 
         `seed` re-seeds every environment's generator first (only with env_mask None).
