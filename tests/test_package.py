@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
 import pytest
+from wheels import build_wheel
 
 import terl_rt
 from terl_rt import Scenario
@@ -31,21 +31,10 @@ def test_the_packaged_default_policy_is_the_exported_one():
 def installed(tmp_path_factory) -> Path:
     """The wheel of this checkout installed (not editable) into a folder of its own."""
     folder = tmp_path_factory.mktemp("wheel")
-    # Build from a copy of what a source distribution holds, so the build leaves nothing
-    # (build/, *.egg-info) in the checkout and no stale build output slips in.
-    source = folder / "source"
-    source.mkdir()
-    for name in ("pyproject.toml", "README.md", "LICENSE", "CITATION.cff"):
-        shutil.copy(ROOT / name, source / name)
-    shutil.copytree(ROOT / "terl_rt", source / "terl_rt", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "training", source / "training", ignore=shutil.ignore_patterns("__pycache__"))
-    build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", folder / "dist", source],
-        capture_output=True, text=True,
-    )
-    if build.returncode != 0:
-        pytest.skip(f"cannot build a wheel here: {build.stderr.strip()[-300:]}")
-    wheel = next((folder / "dist").glob("terl_rt-*.whl"))
+    try:
+        wheel = build_wheel(folder)
+    except RuntimeError as error:
+        pytest.skip(f"cannot build a wheel here: {error}")
     target = folder / "site"
     with zipfile.ZipFile(wheel) as archive:
         archive.extractall(target)
