@@ -13,6 +13,7 @@ from tiny_worlds import capture_scenario
 
 import terl_rt.cli.options
 from terl_rt.cli.main import cli
+from terl_rt.evaluation.episodes import RESULTS_SCHEMA
 
 ROW_KEYS = {
     "name", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "travel_time_s_std",
@@ -51,7 +52,7 @@ def test_eval_prints_a_table_per_scenario(files):
                     "--episodes", "2", "--max-steps", "5")
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()
-    assert "travel time (s)" in lines[1] and "success" in lines[1]
+    assert "travel (s): mean ± std" in lines[1] and "success" in lines[1]
     assert lines[2].split()[:2] == ["small-11", "2"] and lines[3].split()[:2] == ["small-15", "2"]
     assert "±" in lines[2]
 
@@ -61,7 +62,8 @@ def test_eval_json_is_one_object_with_the_documented_keys(files):
                     "--max-steps", "4", "--json")
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)  # the whole of stdout is one object
-    assert set(out) == {"terl_rt", "policy", "seed", "scenarios"}
+    assert set(out) == {"terl_rt", "schema", "policy", "seed", "scenarios"}
+    assert out["schema"] == RESULTS_SCHEMA
     assert out["policy"]["name"] == "linear-test"
     (row,) = out["scenarios"]
     assert set(row) == ROW_KEYS
@@ -102,6 +104,13 @@ def test_info_prints_metadata_and_the_contract_report(files):
     assert "[fail]" not in result.stdout
 
 
+def test_info_says_whether_the_contract_holds_on_its_first_line(files):
+    first = invoke("info", files["policy"]).stdout.splitlines()[0]
+    assert first.endswith("meets the contract (45 of 45 checks pass)"), first
+    broken = invoke("info", write_broken_policy(files["folder"] / "eight-first.onnx", "eight_actions"))
+    assert "refused by the contract: output 'q_values'" in broken.stdout.splitlines()[0]
+
+
 def test_info_json(files):
     out = json.loads(invoke("info", files["policy"], "--json").stdout)
     assert out["ok"] and out["metadata"]["terl.model"] == "linear-test" and len(out["sha256"]) == 64
@@ -121,6 +130,13 @@ def test_replay_lists_the_episodes(log):
     assert result.exit_code == 0, result.output
     rows = [line.split() for line in result.stdout.splitlines()[2:]]
     assert [row[:4] for row in rows] == [["0", "tiny-capture", "0", "6"], ["1", "tiny-capture", "1", "6"]]
+
+
+def test_replay_list_header_names_every_column_of_its_rows(log):
+    header, *rows = invoke("replay", log).stdout.splitlines()[1:]
+    columns = ["#", "scenario", "seed", "steps", "outcome", "travel (s)", "encircled", "collision ratio", "return"]
+    assert [name for name in columns if name in header] == columns
+    assert {len(row.split()) for row in rows} == {len(columns)}
 
 
 def test_replay_episode_shows_its_events(log):

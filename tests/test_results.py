@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 from onnx_models import write_test_policy
 
-from terl_rt import Scenario
+from terl_rt import Scenario, Simulator
 from terl_rt.cli.eval import CSV_COLUMNS
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import ScenarioResult, episode_outcome
@@ -75,11 +75,24 @@ def test_eval_json_carries_every_episode_the_step_limit_and_versions(policy):
     for episode in row["per_episode"]:
         assert set(episode) == {
             "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions", "collision_ratio", "captures",
+            "return",
         }
         assert episode["outcome"] in ("success", "step_limit", "too_few_pursuers")
     assert set(row["ci95"]) == {"success_rate", "travel_time_s", "collision_ratio"}
     low, high = row["ci95"]["travel_time_s"]
     assert low <= row["travel_time_s_mean"] <= high
+
+
+def test_an_episode_s_return_is_every_reward_of_every_pursuer_summed():
+    scenario = Scenario.preset("small-11").replace(max_steps=6)
+    sim = Simulator(scenario, seed=3)
+    sim.reset()
+    rng = np.random.default_rng(0)
+    total = 0.0
+    while not sim.done:
+        _, info = sim.step(rng.integers(0, 9, scenario.pursuers))
+        total += info.reward.sum()
+    assert sim.metrics().team_return == pytest.approx(total, rel=1e-12)
 
 
 def test_eval_csv_writes_one_row_per_episode(policy, tmp_path):

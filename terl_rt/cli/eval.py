@@ -31,20 +31,22 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option
-from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.episodes import RESULTS_SCHEMA, ScenarioResult
 from terl_rt.evaluation.stats import format_interval
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.contract import META_CONTRACT, META_TRAINING_STEPS
 from terl_rt.policy.onnx_policy import policy_info
 
 HEADER = (
-    f"{'scenario':<14}{'episodes':>9}{'success':>9} {'95 % CI':<13}{'travel time (s)':>18} {'95 % CI':<15}"
+    f"{'scenario':<14}{'episodes':>9}{'success':>9} {'95 % CI':<13}{'travel (s): mean ± std':>22} {'95 % CI':<15}"
     f"{'collision':>10} {'95 % CI':<15}{'steps':>8}{'wall (s)':>10}"
 )
+"""The table's columns; each 95 % CI is that of the mean before it (the travel time's
+of its mean, not of the spread)."""
 
 CSV_COLUMNS = (
     "scenario", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
-    "collision_ratio", "captures", "max_steps", "policy", "policy_sha256", "terl_rt",
+    "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "terl_rt", "schema",
 )
 """Columns of `terl-rt eval --csv`, one row per episode."""
 
@@ -54,7 +56,7 @@ def _row(result: ScenarioResult) -> str:
     travel = f"{result.travel_time_s_mean:.1f} ± {result.travel_time_s_std:.1f}"
     return (
         f"{result.name:<14}{result.episodes:>9}{result.success_rate:>9.2f} {format_interval(ci['success_rate'], 2):<13}"
-        f"{travel:>18} {format_interval(ci['travel_time_s'], 1):<15}"
+        f"{travel:>22} {format_interval(ci['travel_time_s'], 1):<15}"
         f"{result.collision_ratio_mean:>10.3f} {format_interval(ci['collision_ratio'], 3):<15}"
         f"{result.steps_mean:>8.1f}{result.wall_s:>10.1f}"
     )
@@ -87,7 +89,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
                 writer.writerow({
                     "scenario": result.name, **{k: v for k, v in row.items() if k in CSV_COLUMNS},
                     "max_steps": result.max_steps, "policy": info["name"], "policy_sha256": info["sha256"],
-                    "terl_rt": version,
+                    "terl_rt": version, "schema": RESULTS_SCHEMA,
                 })
 
 
@@ -106,7 +108,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @json_option
 @click.option(
     "--csv", "csv_path", type=str, default=None, metavar="FILE.csv",
-    help="Also write one row per episode (seed, outcome, steps, collisions, captures) to this CSV file.",
+    help="Also write one row per episode (seed, outcome, steps, collisions, captures, return) to this CSV file.",
 )
 @threads_option
 @force_option
@@ -118,8 +120,8 @@ def eval_command(
     steps and wall time per scenario, with 95 % bootstrap confidence intervals over the
     episodes (fixed seed). Episode k of a scenario runs with seed + k, so any episode
     can be run again alone. A progress bar with an ETA goes to stderr. --json prints
-    every episode too (seed, outcome, steps, collisions, captures), the step limit and
-    the terl-rt and policy versions. An existing --log or --csv file is replaced only
+    every episode too (seed, outcome, steps, collisions, captures, return), the step
+    limit, the terl-rt and policy versions and the results' schema version. An existing --log or --csv file is replaced only
     with --force (and never when it is the policy or scenario file); the log at the
     first step. With --backend ray the episodes are Ray tasks (the policy reaches the
     workers through Ray's object store); their steps stream back to the log as they are
@@ -149,6 +151,7 @@ def eval_command(
     if as_json:
         click.echo(json.dumps({
             "terl_rt": terl_rt_version(),
+            "schema": RESULTS_SCHEMA,
             "policy": policy_version(info),
             "seed": seed,
             "scenarios": [result.to_dict(per_episode=True) for result in results],

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from terl_rt.cli.options import BadInput, json_option
+from terl_rt.policy.contract import PASS
 from terl_rt.policy.onnx_policy import check_contract
 
 
@@ -33,7 +34,9 @@ def info(policy: str, as_json: bool) -> None:
             "checks": [{"name": c.name, "status": c.status, "detail": c.detail} for c in report.checks],
         }))
     else:
-        click.echo(f"policy   {path}")
+        passed = sum(check.status == PASS for check in report.checks)
+        verdict = "meets the contract" if report.ok else f"refused by the contract: {report.failures[0].detail}"
+        click.echo(f"policy   {path}: {verdict} ({passed} of {len(report.checks)} checks pass)")
         click.echo(f"sha256   {sha256}")
         click.echo("metadata")
         for key, value in sorted(report.metadata.items()):

@@ -19,14 +19,22 @@ def _episode_dict(entry: LoggedEpisode) -> dict:
     }
 
 
+LIST_HEADER = (
+    f"{'#':>4}  {'scenario':<14}{'seed':>6}{'steps':>7}  {'outcome':<8}{'travel (s)':>11}{'encircled':>10}"
+    f"{'collision ratio':>16}{'return':>10}"
+)
+"""The columns of the episode list: one per field of `_episode_line`."""
+
+
 def _episode_line(entry: LoggedEpisode) -> str:
     if entry.metrics is None:
         outcome = "cut off (no end recorded)"
     else:
         m = entry.metrics
+        team_return = "-" if m.team_return is None else f"{m.team_return:.1f}"  # logs from before returns
         outcome = (
-            f"{'success' if m.success else 'failure':<8} {m.travel_time_s:>8.1f} s "
-            f"encircled {m.evaders_encircled:>3}  collision ratio {m.collision_ratio:.3f}"
+            f"{'success' if m.success else 'failure':<8}{m.travel_time_s:>11.1f}{m.evaders_encircled:>10}"
+            f"{m.collision_ratio:>16.3f}{team_return:>10}"
         )
     return f"{entry.number:>4}  {entry.scenario.name:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}"
 
@@ -75,7 +83,7 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
         click.echo(json.dumps(out))
         return
     click.echo(f"log {log}: policy {reader.policy['name']} (sha256 {reader.policy['sha256'][:12]})")
-    click.echo(f"{'#':>4}  {'scenario':<14}{'seed':>6}{'steps':>7}  outcome")
+    click.echo(LIST_HEADER)
     for entry in entries:
         click.echo(_episode_line(entry))
     if episode is not None:

@@ -23,6 +23,10 @@ from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario
 
+RESULTS_SCHEMA = 2
+"""Version of the per-episode result fields (`ScenarioResult.episode_rows`, `eval --json`
+and `--csv`): 2 added `return`."""
+
 Progress = Callable[[int, EpisodeMetrics], None]
 """Called after each finished episode with its index and metrics (in episode order)."""
 
@@ -53,9 +57,10 @@ class ScenarioResult:
         return episode_intervals(self.per_episode)
 
     def episode_rows(self) -> list[dict]:
-        """One row per episode: index, seed, outcome (success, too_few_pursuers or
-        step_limit), steps, travel time, collisions (pursuers), collision ratio and
-        captures (evaders encircled)."""
+        """One row per episode (fields of RESULTS_SCHEMA): index, seed, outcome (success,
+        too_few_pursuers or step_limit), steps, travel time, collisions (pursuers),
+        collision ratio, captures (evaders encircled) and return (every pursuer's reward
+        summed over the episode)."""
         return [
             {
                 "episode": k,
@@ -67,6 +72,7 @@ class ScenarioResult:
                 "collisions": m.pursuers_collided,
                 "collision_ratio": m.collision_ratio,
                 "captures": m.evaders_encircled,
+                "return": m.team_return,
             }
             for k, m in enumerate(self.per_episode)
         ]

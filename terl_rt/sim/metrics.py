@@ -25,13 +25,17 @@ class EpisodeMetrics:
     """collided pursuers / pursuers."""
     evaders_encircled: int
     pursuers_collided: int
+    team_return: float | None = None
+    """the episode's return: the sum of every pursuer's reward over its steps (None in
+    metrics read from logs written before terl-rt recorded it)."""
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def episode_metrics(state: WorldState, env: int, params: WorldParams) -> EpisodeMetrics:
-    """Metrics of environment `env` of a batch, from its current state."""
+def episode_metrics(state: WorldState, env: int, params: WorldParams, team_return: float | None = None) -> EpisodeMetrics:
+    """Metrics of environment `env` of a batch, from its current state and the rewards
+    summed so far (`team_return`)."""
     steps = int(state.steps[env])
     collided = int((~state.pursuer_active[env]).sum())
     encircled = int((~state.evader_active[env]).sum())
@@ -42,6 +46,7 @@ def episode_metrics(state: WorldState, env: int, params: WorldParams) -> Episode
         collision_ratio=collided / state.pursuer_active.shape[1],
         evaders_encircled=encircled,
         pursuers_collided=collided,
+        team_return=team_return,
     )
 
 

@@ -146,6 +146,8 @@ class World:
         self.geometry: Geometry | None = None
         self.done = np.ones(num_envs, bool)
         """[B] bool: environments whose episode ended (or never started); reset them."""
+        self.episode_return = np.zeros(num_envs)
+        """[B] float64: every pursuer's reward summed over the episode so far."""
 
     def _seed(self, seed: Seed) -> None:
         self.seed = seed_value(seed)
@@ -182,6 +184,7 @@ class World:
         else:
             self.state.assign(mask, fresh)
         self.done[mask] = False
+        self.episode_return[mask] = 0.0
         self.geometry = Geometry.of(self.state)
         return pursuer_observations(self.state, self.geometry, self.params, self.scenario.evader_slots)
 
@@ -258,10 +261,12 @@ class World:
         terminated = success | (state.pursuer_active.sum(-1) < p.min_active_pursuers)
         truncated = ~terminated & (state.steps >= scenario.max_steps)
         self.done = terminated | truncated
+        reward = terms.sum(-1)
+        self.episode_return += reward.sum(-1)
 
         observation = pursuer_observations(state, geometry, p, scenario.evader_slots)
         return observation, StepResult(
-            reward=terms.sum(-1), reward_terms=terms, team_cooperation=team, acted=acted, collided=collided,
+            reward=reward, reward_terms=terms, team_cooperation=team, acted=acted, collided=collided,
             captured=ring.evader_captured, pursuer_target=ring.pursuer_target,
             evader_actions=evader_actions, terminated=terminated, truncated=truncated, success=success,
         )
@@ -270,7 +275,7 @@ class World:
         """Metrics of environment `env`'s episode so far."""
         if self.state is None:
             raise RuntimeError("metrics: call reset() first")
-        return episode_metrics(self.state, env, self.params)
+        return episode_metrics(self.state, env, self.params, float(self.episode_return[env]))
 
 
 def _check_actions(actions: np.ndarray, active: np.ndarray) -> np.ndarray:
