@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import click
 import pytest
 from click.testing import CliRunner
 from onnx_models import write_broken_policy, write_random_bytes, write_test_policy
@@ -248,3 +249,31 @@ def test_bad_input_exits_2_with_one_line(files, log, case):
 def test_debug_shows_the_exception(files):
     result = CliRunner().invoke(cli, ["--debug", "eval", "--policy", str(files["folder"] / "absent.onnx")])
     assert isinstance(result.exception, FileNotFoundError)
+
+
+def _commands(group, path=("terl-rt",)):
+    for name, command in group.commands.items():
+        yield (*path, name), command
+        if isinstance(command, click.Group):
+            yield from _commands(command, (*path, name))
+
+
+@pytest.mark.parametrize("path", [" ".join(path) for path, _ in _commands(cli)])
+def test_every_subcommand_s_help_shows_examples_of_itself(path):
+    words = path.split()[1:]
+    result = invoke(*words, "--help")
+    assert result.exit_code == 0, result.output
+    examples = result.stdout.split("Examples:")[1]
+    assert f"terl-rt {' '.join(words)}" in examples
+
+
+def test_help_prints_ranges_as_people_write_them():
+    text = " ".join(invoke("eval", "--help").stdout.split())
+    assert "0 to 2^62" in text and "1 to 10^6" in text
+    assert "<=x<=" not in text and "4611686018427387904" not in text
+
+
+def test_an_unknown_preset_suggests_the_closest_one():
+    result = invoke("eval", "--scenario", "small15")
+    assert result.exit_code == 2
+    assert "unknown scenario 'small15' (did you mean 'small-15'?)" in result.stderr

@@ -108,8 +108,8 @@ def test_curriculum_stage_follows_environment_steps(env_step, stage):
     assert curriculum_stage(env_step).name == f"curriculum-{stage}"
 
 
-def test_unknown_preset_raises_listing_the_presets():
-    with pytest.raises(ScenarioError, match="small-15"):
+def test_an_unknown_preset_points_to_the_list_of_presets():
+    with pytest.raises(ScenarioError, match=r"unknown scenario 'tiny-3'; `terl-rt scenarios` \(Scenario.presets\(\)\) lists"):
         Scenario.preset("tiny-3")
 
 
@@ -295,3 +295,13 @@ def test_arena_read_from_json_is_a_tuple():
     s = Scenario.from_dict({"name": "wide", "arena": [200, 80.5]})
     assert s.arena == (200, 80.5)
     assert math.isclose(s.arena[1], 80.5)
+
+
+def test_an_unknown_params_key_suggests_the_closest_constant():
+    with pytest.raises(ScenarioError, match=r"params.perception_radus: unknown constant \(did you mean 'perception_radius'\?\)"):
+        Scenario.from_dict({"name": "x", "params": {"perception_radus": 1.0}})
+
+
+def test_an_unknown_scenario_field_suggests_the_closest_field():
+    with pytest.raises(ScenarioError, match=r"pursuer: unknown field \(did you mean 'pursuers'\?\)"):
+        Scenario.from_dict({"name": "x", "pursuer": 3})

@@ -42,7 +42,13 @@ envs_option = click.option(
 
 @click.group()
 def bench() -> None:
-    """Speed benchmarks (timings for reports, never pass/fail)."""
+    """Speed benchmarks (timings for reports, never pass/fail).
+
+    \b
+    Examples:
+      terl-rt bench sim --scenario large-80 --envs 16
+      terl-rt bench policy --threads 1
+    """
 
 
 @bench.command("sim")
@@ -53,7 +59,13 @@ def bench() -> None:
 @json_option
 def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
     """Simulator speed: environment steps per second and ms per step, with random
-    pursuer actions and the paper's APF evaders (observations included)."""
+    pursuer actions and the paper's APF evaders (observations included).
+
+    \b
+    Examples:
+      terl-rt bench sim
+      terl-rt bench sim --scenario large-80 --envs 16 --steps 200 --json
+    """
     result = simulator_speed(scenario, steps, num_envs=num_envs, seed=seed)
     if as_json:
         click.echo(json.dumps(result.to_dict()))
@@ -70,7 +82,13 @@ def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
 @json_option
 def scaling(steps: int, as_json: bool) -> None:
     """How the cost of one step grows with the team: large-80's world with 15, 80, 200
-    and 400 pursuers (evaders a quarter of that, arena grown to keep the density)."""
+    and 400 pursuers (evaders a quarter of that, arena grown to keep the density).
+
+    \b
+    Examples:
+      terl-rt bench scaling
+      terl-rt bench scaling --steps 50 --json
+    """
     rows = []
     with click.progressbar(SCALING_PURSUERS, label="scaling", file=sys.stderr) as counts:
         for pursuers in counts:
@@ -93,7 +111,13 @@ def scaling(steps: int, as_json: bool) -> None:
 @json_option
 def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
     """Policy speed: ms per step to choose the actions of all active pursuers (one
-    policy call on the real observations of a Simulator's world driven by the policy)."""
+    policy call on the real observations of a Simulator's world driven by the policy).
+
+    \b
+    Examples:
+      terl-rt bench policy
+      terl-rt bench policy --policy my.onnx --scenario large-80 --threads 1
+    """
     policy = open_policy(policy_path, threads=threads)
     result = policy_speed(policy, scenario, steps, seed=seed)
     if as_json:
@@ -131,7 +155,13 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
     both see the same load on the machine. Prints episodes per second of the best round,
     the time to start Ray (not in the run time), Ray's run time over the local one, and
     whether every episode came out the same. Every worker runs its policy on one
-    onnxruntime thread (a local run in this process too). Needs Ray: pip install 'terl-rt[ray]'."""
+    onnxruntime thread (a local run in this process too). Needs Ray: pip install 'terl-rt[ray]'.
+
+    \b
+    Examples:
+      terl-rt bench backends --scenario small-15 --episodes 10 --workers 1 --workers 2 --repeat 3
+      terl-rt bench backends --suite paper --episodes 4 --workers 2 --repeat 2
+    """
     policy = open_policy(policy_path, threads=1)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = []

@@ -125,7 +125,16 @@ def eval_command(
     with --force (and never when it is the policy or scenario file); the log at the
     first step. With --backend ray the episodes are Ray tasks (the policy reaches the
     workers through Ray's object store); their steps stream back to the log as they are
-    taken, and an episode whose worker dies is run again elsewhere, counted once."""
+    taken, and an episode whose worker dies is run again elsewhere, counted once.
+
+    \b
+    Examples:
+      terl-rt eval                                     # the shipped policy on small-15, 20 episodes
+      terl-rt eval --policy my.onnx --scenario medium-48 --episodes 50 --seed 100
+      terl-rt eval --suite paper --workers 2 --csv episodes.csv
+      terl-rt eval --episodes 5 --log run.mcap         # then: terl-rt replay run.mcap
+      terl-rt eval --scenario-file my-world.json --json
+    """
     inputs = [("--policy", policy_path), ("--scenario-file", scenario_file)]
     if log_path:
         check_output(log_path, "--log", inputs, force)

@@ -19,7 +19,13 @@ from terl_rt.policy.onnx_policy import check_contract
 def info(policy: str, as_json: bool) -> None:
     """Show an ONNX policy's metadata, inputs, outputs and the check against the
     exported-policy contract (the terl-rt repository's docs/policy.md section 3). Exit status 2 when the contract
-    refuses the model (the report is printed first)."""
+    refuses the model (the report is printed first).
+
+    \b
+    Examples:
+      terl-rt info my-policy.onnx
+      terl-rt info my-policy.onnx --json
+    """
     path = Path(policy)
     report = check_contract(path)  # FileNotFoundError / ContractError for unreadable files
     sha256 = hashlib.sha256(path.read_bytes()).hexdigest()

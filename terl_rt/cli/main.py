@@ -77,6 +77,13 @@ def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
 
     The world is the TERL paper's: pursuer robots encircle faster evaders in a 2-D sea
     with obstacles and vortex currents. Every subcommand has its own --help.
+
+    \b
+    Examples:
+      terl-rt eval                       # the shipped TERL policy on small-15
+      terl-rt eval --episodes 5 --log run.mcap && terl-rt render run.mcap -o final.png
+      terl-rt scenarios                  # the presets
+      python -m terl_rt --version        # where the terl-rt script is not on PATH
     """
     level = logging.DEBUG if debug or verbose > 1 else logging.INFO if verbose else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")

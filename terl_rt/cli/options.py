@@ -38,6 +38,26 @@ MAX_STEPS = SCENARIO_LIMITS["max_steps"]
 """largest --max-steps: the scenario field's own limit."""
 
 
+def _readable(bound: float) -> str:
+    """A range bound as people write it: 2^62, 10^6, else the number itself."""
+    if isinstance(bound, int) and bound > 2**20 and bound & (bound - 1) == 0:
+        return f"2^{bound.bit_length() - 1}"
+    if isinstance(bound, int) and bound >= 10**5 and str(bound).rstrip("0") == "1":
+        return f"10^{len(str(bound)) - 1}"
+    return f"{bound:g}" if isinstance(bound, float) else str(bound)
+
+
+class IntRange(click.IntRange):
+    """click's IntRange with bounds printed readably in --help and errors: "0 to 2^62"."""
+
+    def _describe_range(self) -> str:
+        if self.min is None:
+            return f"at most {_readable(self.max)}"
+        if self.max is None:
+            return f"at least {_readable(self.min)}"
+        return f"{_readable(self.min)} to {_readable(self.max)}"
+
+
 class BadInput(click.ClickException):
     """An expected user mistake: printed as one line "Error: ...", exit status 2."""
 
@@ -187,8 +207,8 @@ suite_option = click.option(
     help="A scenario suite: paper = the 10 evaluation presets of Table III.",
 )
 seed_option = click.option(
-    "--seed", type=click.IntRange(min=0, max=MAX_SEED), default=0, show_default=True,
-    help="Random seed of the episodes (0 .. 2^62).",
+    "--seed", type=IntRange(min=0, max=MAX_SEED), default=0, show_default=True,
+    help="Random seed of the episodes.",
 )
 json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object instead of a table."
@@ -203,19 +223,19 @@ policies_option = click.option(
     f"[default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
 )
 threads_option = click.option(
-    "--threads", type=click.IntRange(min=1, max=MAX_THREADS), default=None,
+    "--threads", type=IntRange(min=1, max=MAX_THREADS), default=None,
     help="onnxruntime intra-op threads [default: onnxruntime's choice; 1 per worker].",
 )
 episodes_option = click.option(
-    "--episodes", type=click.IntRange(min=1, max=MAX_EPISODES), default=20, show_default=True,
+    "--episodes", type=IntRange(min=1, max=MAX_EPISODES), default=20, show_default=True,
     help="Episodes per scenario; episode k runs with seed + k.",
 )
 max_steps_option = click.option(
-    "--max-steps", type=click.IntRange(min=1, max=MAX_STEPS), default=None,
+    "--max-steps", type=IntRange(min=1, max=MAX_STEPS), default=None,
     help="Step limit per episode (0.5 s steps) [default: the scenario's, 1000].",
 )
 workers_option = click.option(
-    "--workers", type=click.IntRange(min=1, max=MAX_WORKERS), default=None,
+    "--workers", type=IntRange(min=1, max=MAX_WORKERS), default=None,
     help="Processes to spread the episodes over, or with --backend ray the episodes run at once "
     "(results are the same as with 1) [default: 1; with --backend ray: every CPU of the cluster].",
 )
@@ -235,6 +255,6 @@ log_option = click.option(
     help="Write every step of every episode to this MCAP log (Foxglove, replay, render).",
 )
 episode_option = click.option(
-    "--episode", type=click.IntRange(min=0), default=None,
+    "--episode", type=IntRange(min=0), default=None,
     help="Episode of the log, by its position in the file (0-based).",
 )

@@ -7,26 +7,34 @@ from pathlib import Path
 
 import click
 
+from terl_rt.cli.options import IntRange
 from terl_rt.cli.outputs import check_output, force_option, temporary_name
 from terl_rt.logs.render import FORMATS, RenderError, render
 
 
 @click.command("render")
 @click.argument("log", type=str)
-@click.option("--episode", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--episode", type=IntRange(min=0), default=0, show_default=True,
               help="Episode of the log, by its position in the file (0-based).")
 @click.option("-o", "--output", "output", type=str, required=True, metavar="OUT",
               help=f"Output file; its suffix picks the format ({', '.join(FORMATS)}; .png = final frame).")
 @click.option("--fps", type=click.FloatRange(min=0.1, max=120.0), default=10.0, show_default=True,
               help="Frames per second of an animation.")
-@click.option("--every", type=click.IntRange(min=1), default=None,
+@click.option("--every", type=IntRange(min=1), default=None,
               help="Draw every K-th step (0.5 s each) [default: 1; a .gif keeps at most 200 frames].")
-@click.option("--size", type=click.IntRange(min=64, max=4096), default=640, show_default=True, help="Image width in px.")
+@click.option("--size", type=IntRange(min=64, max=4096), default=640, show_default=True, help="Image width in px.")
 @force_option
 def render_command(log: str, episode: int, output: str, fps: float, every: int | None, size: int, force: bool) -> None:
     """Render an episode: arena, obstacles, vortex cores with their rotation, pursuers
     with heading and trails, evaders (green once encircled), step and metrics in the title.
-    An existing OUT is replaced only with --force (never the LOG itself), once the image is complete."""
+    An existing OUT is replaced only with --force (never the LOG itself), once the image is complete.
+
+    \b
+    Examples:
+      terl-rt render run.mcap -o final.png                      # the last frame
+      terl-rt render run.mcap --episode 2 -o episode.gif --every 2
+      terl-rt render run.mcap -o episode.mp4 --fps 20 --size 960  # needs terl-rt[video]
+    """
     if Path(output).suffix.lower() not in FORMATS:
         raise RenderError(f"{output}: unknown output format {Path(output).suffix or '(none)'!r}; use one of {', '.join(FORMATS)}")
     out = check_output(output, "-o", [("LOG", log)], force)

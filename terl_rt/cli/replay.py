@@ -47,7 +47,15 @@ def _episode_line(entry: LoggedEpisode) -> str:
 def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
     """List the episodes of an MCAP episode log (from `terl-rt eval --log`), show the
     events of one (--episode K), or verify episodes by re-simulating them (--verify:
-    every episode, or K). Exit status 1 when a verification finds a mismatch."""
+    every episode, or K). Exit status 1 when a verification finds a mismatch.
+
+    \b
+    Examples:
+      terl-rt replay run.mcap                        # one line per episode
+      terl-rt replay run.mcap --episode 3            # its captures, collisions and end
+      terl-rt replay run.mcap --verify               # re-simulate every episode bit for bit
+      terl-rt replay run.mcap --episode 3 --json
+    """
     reader = EpisodeLogReader(log)
     chosen = list(range(len(reader.episodes))) if episode is None else [reader.episode(episode).number]
     if check:

@@ -118,7 +118,14 @@ def report_command(
     TERL, IQN, DQN, MEAN, w/o RE and w/o TS (method names from each file's terl.model):
     DIR/comparison.md (the paper's claims checked, Table III on CC, Table IV the
     ablation, each beside the paper's numbers, with 95 % intervals), DIR/comparison.png
-    (Fig. 3: one line a method) and DIR/comparison.json."""
+    (Fig. 3: one line a method) and DIR/comparison.json.
+
+    \b
+    Examples:
+      terl-rt report                                   # the default policy into ./report
+      terl-rt report --policy my.onnx --episodes 5 --workers 2 --out my-report
+      terl-rt report --policy policies/ --scenario cc-28 --out comparison
+    """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:

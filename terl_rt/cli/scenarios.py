@@ -15,7 +15,13 @@ from terl_rt.sim.scenario import PAPER_SUITE, PUBLISHED_SMALL_SUITE, Scenario
 def scenarios(as_json: bool) -> None:
     """List the preset scenarios: the paper's 10 evaluation presets (`--suite paper`),
     the 3 of the authors' released small-scale evaluation config (small-published-*,
-    policy.md section 2) and the 5 training curriculum stages. Arena sizes in metres."""
+    policy.md section 2) and the 5 training curriculum stages. Arena sizes in metres.
+
+    \b
+    Examples:
+      terl-rt scenarios
+      terl-rt scenarios --json        # each preset in the form --scenario-file reads
+    """
     rows = [Scenario.preset(name).to_dict() for name in Scenario.presets()]
     if as_json:
         click.echo(json.dumps({

@@ -94,7 +94,14 @@ def sweep_command(
     ratio with 95 % bootstrap intervals, steps) and DIR/sweep.json (every episode too).
     With --backend ray every episode is a Ray task, the whole sweep submitted at once, so
     a cluster stays busy; the table is the same on either backend. A progress bar goes to
-    stderr. Existing files are replaced only with --force."""
+    stderr. Existing files are replaced only with --force.
+
+    \b
+    Examples:
+      terl-rt sweep --policy a.onnx --policy b.onnx --scenario small-15 --scenario medium-48 --out sweep
+      terl-rt sweep --policy policies/ --suite paper --episodes 20 --workers 2 --out sweep --force
+      terl-rt sweep --policy policies/ --suite paper --backend ray --address auto --out sweep
+    """
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise BadInput(f"--out {out} is a file; name a folder")

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import json
 import math
 from dataclasses import dataclass, field
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -93,9 +95,7 @@ class Scenario:
     def preset(name: str) -> Scenario:
         """The preset called `name` (see `Scenario.presets()`)."""
         if name not in PRESETS:
-            raise ScenarioError(
-                f"unknown scenario {name!r}; presets are: {', '.join(PRESETS)}"
-            )
+            raise ScenarioError(f"unknown scenario {short_repr(name)}{did_you_mean(str(name), PRESETS)}; `terl-rt scenarios` (Scenario.presets()) lists the presets")
         return PRESETS[name]
 
     @staticmethod
@@ -317,6 +317,13 @@ def _validate_initial_state(s: Scenario) -> None:
             )
 
 
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """" (did you mean 'x'?)" naming the known name closest to `name` (difflib's ratio
+    >= 0.6), or "" when none is close."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def _key(key: Any) -> str:
     """A field name for an error line, cut to 60 characters."""
     text = str(key)
@@ -367,7 +374,9 @@ def _from_dict(data: Any) -> Scenario:
     known = {f.name for f in dataclasses.fields(Scenario)}
     unknown = sorted(set(map(str, data)) - known)
     if unknown:
-        raise ScenarioError(f"{_key(unknown[0])}: unknown field (known: {', '.join(sorted(known))})")
+        raise ScenarioError(
+            f"{_key(unknown[0])}: unknown field{did_you_mean(unknown[0], known)} (known: {', '.join(sorted(known))})"
+        )
     if "name" not in data:
         raise ScenarioError("name: missing (every scenario needs a name)")
     kwargs = dict(data)
@@ -391,7 +400,10 @@ def _params_from_dict(data: Any) -> WorldParams:
         raise ScenarioError("params: must be an object of constant names to numbers")
     unknown = sorted(set(map(str, data)) - set(WorldParams.field_names()))
     if unknown:
-        raise ScenarioError(f"params.{_key(unknown[0])}: unknown constant")
+        raise ScenarioError(
+            f"params.{_key(unknown[0])}: unknown constant{did_you_mean(unknown[0], WorldParams.field_names())}; "
+            "the constants are the fields of terl_rt.WorldParams"
+        )
     default = WorldParams()
     for name, value in data.items():
         problem = check_param(name, value)
@@ -405,7 +417,7 @@ def _initial_state_from_dict(data: Any) -> InitialState:
         raise ScenarioError("initial_state: must be an object with pursuers, evaders, obstacles, vortices")
     unknown = sorted(set(data) - set(_STATE_WIDTHS))
     if unknown:
-        raise ScenarioError(f"initial_state.{_key(unknown[0])}: unknown field")
+        raise ScenarioError(f"initial_state.{_key(unknown[0])}: unknown field{did_you_mean(str(unknown[0]), _STATE_WIDTHS)}")
     groups = {}
     for group, width in _STATE_WIDTHS.items():
         rows = data.get(group, [])
