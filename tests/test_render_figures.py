@@ -36,7 +36,7 @@ def test_axis_ticks_are_metres_along_each_side():
 def test_frames_have_tick_labels_left_of_and_under_the_arena(episode_log, tmp_path):
     out = render(episode_log, tmp_path / "last.png", size=480)
     image = np.asarray(Image.open(out).convert("L"))
-    canvas = render_module._Canvas.of((120.0, 120.0), 480, 1)
+    canvas = render_module._Canvas.of((120.0, 120.0), 480, 1, render_module._fonts()[1])
     x0, y_bottom = canvas.point(0.0, 0.0)
     left_band = image[int(canvas.point(0, 120)[1]):int(y_bottom), : int(x0) - 2]
     under_band = image[int(y_bottom) + 6 : int(y_bottom) + 18, int(x0):]
@@ -69,3 +69,16 @@ def test_every_skips_frames_for_smaller_files(episode_log, tmp_path):
     with Image.open(skipped) as gif:
         assert gif.n_frames == 11
     assert skipped.stat().st_size < full.stat().st_size / 2
+
+
+@pytest.mark.parametrize("size", [480, 640, 1024])
+def test_the_legend_fits_the_width_in_as_many_rows_as_it_needs(size):
+    font = render_module._fonts()[1]
+    ss = render_module._SUPERSAMPLE
+    rows = render_module._legend_rows(size, font, ss)
+    assert tuple(label for row in rows for label in row) == LEGEND
+    for row in rows:
+        width = sum(render_module._legend_entry_px(label, font, ss) + render_module._LEGEND_GAP_PX for label in row)
+        assert render_module._MARGIN_PX + width - render_module._LEGEND_GAP_PX <= size - render_module._MARGIN_PX
+    assert len(rows) == (2 if size == 480 else 1)
+

@@ -77,6 +77,11 @@ def _font(size: int) -> ImageFont.ImageFont:
         return ImageFont.load_default()
 
 
+def _fonts() -> tuple[ImageFont.ImageFont, ImageFont.ImageFont, ImageFont.ImageFont]:
+    """The title's, the labels' and the robot ids' fonts, at the supersampled size."""
+    return _font(15 * _SUPERSAMPLE), _font(12 * _SUPERSAMPLE), _font(10 * _SUPERSAMPLE)
+
+
 @dataclass(frozen=True)
 class _Canvas:
     """Pixel geometry of a frame: world (m) to image (px), y up in the world, down in the image."""
@@ -88,15 +93,19 @@ class _Canvas:
     arena_height_px: float
     ss: int
     """supersampling factor: drawing is done at ss times the final size."""
+    legend: tuple[tuple[str, ...], ...]
+    """the legend's entries, row by row (as many rows as the width needs)."""
 
     @staticmethod
-    def of(arena: tuple[float, float], size: int, ss: int) -> _Canvas:
+    def of(arena: tuple[float, float], size: int, ss: int, font: ImageFont.ImageFont) -> _Canvas:
         width_m, height_m = arena
         scale = (size - 2 * _MARGIN_PX - _AXIS_LEFT_PX) / width_m
         arena_px = height_m * scale
-        height = _HEADER_PX + 2 * _MARGIN_PX + arena_px + _AXIS_BOTTOM_PX + _LEGEND_PX
+        width = int(math.ceil(size / 16) * 16)
+        legend = _legend_rows(width, font, ss)
+        height = _HEADER_PX + 2 * _MARGIN_PX + arena_px + _AXIS_BOTTOM_PX + _LEGEND_PX * len(legend)
         height = int(math.ceil(height / 16) * 16)  # video encoders want multiples of 16
-        return _Canvas(width=int(math.ceil(size / 16) * 16), height=height, scale=scale, arena_height_px=arena_px, ss=ss)
+        return _Canvas(width=width, height=height, scale=scale, arena_height_px=arena_px, ss=ss, legend=legend)
 
     def point(self, x: float, y: float) -> tuple[float, float]:
         return (
@@ -106,6 +115,33 @@ class _Canvas:
 
     def length(self, metres: float, minimum_px: float = 0.0) -> float:
         return self.ss * max(metres * self.scale, minimum_px)
+
+
+_SWATCH_PX = 7
+"""half the width of a legend marker."""
+_LEGEND_GAP_PX = 12
+"""space between two legend entries."""
+
+
+def _legend_entry_px(label: str, font: ImageFont.ImageFont, ss: int) -> float:
+    """Width (final px) of one legend entry: its marker, then its label."""
+    return 2.4 * _SWATCH_PX + font.getlength(label) / ss
+
+
+def _legend_rows(width: int, font: ImageFont.ImageFont, ss: int) -> tuple[tuple[str, ...], ...]:
+    """LEGEND split into rows that fit `width` px (one row at 640 px, two at 480)."""
+    rows: list[tuple[str, ...]] = []
+    row: list[str] = []
+    x = float(_MARGIN_PX)
+    for label in LEGEND:
+        entry = _legend_entry_px(label, font, ss)
+        if row and x + entry > width - _MARGIN_PX:
+            rows.append(tuple(row))
+            row, x = [], float(_MARGIN_PX)
+        row.append(label)
+        x += entry + _LEGEND_GAP_PX
+    rows.append(tuple(row))
+    return tuple(rows)
 
 
 def _circle(draw: ImageDraw.ImageDraw, center: tuple[float, float], radius: float, **style) -> None:
@@ -225,15 +261,22 @@ def _draw_frame(
 
     radius = canvas.length(params.robot_radius, 4)
     ring = canvas.length(params.d_encircle)
+    title_font, small_font, id_font = fonts
     for (x, y), active in zip(state["evader_xy"].tolist(), state["evader_active"].tolist()):
         _evader_marker(draw, *canvas.point(x, y), radius, None if active else ring, ss)
     for (x, y), theta, active in zip(
         state["pursuer_xy"].tolist(), state["pursuer_theta"].tolist(), state["pursuer_active"].tolist()
     ):
         _draw_pursuer(draw, canvas, x, y, theta, active)
+    # Ids, as replay and the logs' events name the robots: pursuer i, evader "e" j.
+    offset = canvas.length(1.6, 7)
+    for group, prefix, kind in (("pursuer_xy", "", "pursuer"), ("evader_xy", "e", "evader")):
+        for i, (x, y) in enumerate(state[group].tolist()):
+            cx, cy = canvas.point(x, y)
+            draw.text((cx + 0.8 * offset, cy - 0.8 * offset), f"{prefix}{i}", fill=_rgb(kind, 0.55), font=id_font,
+                      anchor="ld", stroke_width=ss, stroke_fill=_SEA)
 
     # Title, axes and legend, on bands that hide robots far outside the arena.
-    title_font, small_font = fonts
     draw.rectangle((0, 0, image.width, (_HEADER_PX + 2) * ss), fill=_BACKGROUND)
     draw.rectangle((0, y1 + 2 * ss, image.width, image.height), fill=_BACKGROUND)
     draw.rectangle((0, 0, x0 - 2 * ss, image.height), fill=_BACKGROUND)
@@ -269,26 +312,27 @@ def _draw_frame(
     draw.text((_MARGIN_PX * ss, 8 * ss), line1, fill=_INK, font=title_font)
     draw.text((_MARGIN_PX * ss, 32 * ss), line2, fill=_INK, font=small_font)
 
-    # Legend: each kind drawn with the map's own marker.
-    legend_y = (canvas.height - _LEGEND_PX / 2) * ss
-    x = _MARGIN_PX * ss
-    swatch = 7 * ss
-    for label in LEGEND:
-        cx = x + swatch
-        if label == "pursuer":
-            _pursuer_marker(draw, cx, legend_y, swatch, 0.0, True, ss)
-        elif label == "collided":
-            _pursuer_marker(draw, cx, legend_y, swatch, 0.0, False, ss)
-        elif label == "evader":
-            _evader_marker(draw, cx, legend_y, 0.6 * swatch, None, ss)
-        elif label == "encircled":
-            _evader_marker(draw, cx, legend_y, 0.45 * swatch, swatch, ss)
-        elif label == "obstacle":
-            _circle(draw, (cx, legend_y), 0.7 * swatch, fill=_rgb("obstacle"))
-        else:
-            _vortex_marker(draw, cx, legend_y, 0.9 * swatch, 0.25 * swatch, label == "vortex cw", ss)
-        draw.text((x + 2.4 * swatch, legend_y), label, fill=_INK, font=small_font, anchor="lm")
-        x += 2.4 * swatch + draw.textlength(label, font=small_font) + 12 * ss
+    # Legend: each kind drawn with the map's own marker, in as many rows as the width needs.
+    swatch = _SWATCH_PX * ss
+    for row_index, row in enumerate(canvas.legend):
+        legend_y = (canvas.height - _LEGEND_PX * (len(canvas.legend) - row_index - 0.5)) * ss
+        x = _MARGIN_PX * ss
+        for label in row:
+            cx = x + swatch
+            if label == "pursuer":
+                _pursuer_marker(draw, cx, legend_y, swatch, 0.0, True, ss)
+            elif label == "collided":
+                _pursuer_marker(draw, cx, legend_y, swatch, 0.0, False, ss)
+            elif label == "evader":
+                _evader_marker(draw, cx, legend_y, 0.6 * swatch, None, ss)
+            elif label == "encircled":
+                _evader_marker(draw, cx, legend_y, 0.45 * swatch, swatch, ss)
+            elif label == "obstacle":
+                _circle(draw, (cx, legend_y), 0.7 * swatch, fill=_rgb("obstacle"))
+            else:
+                _vortex_marker(draw, cx, legend_y, 0.9 * swatch, 0.25 * swatch, label == "vortex cw", ss)
+            draw.text((x + 2.4 * swatch, legend_y), label, fill=_INK, font=small_font, anchor="lm")
+            x += (_legend_entry_px(label, small_font, ss) + _LEGEND_GAP_PX) * ss
     if ss > 1:
         image = image.resize((canvas.width, canvas.height), Image.Resampling.LANCZOS)
     return image
@@ -301,8 +345,8 @@ def draw_state(
     as `render` draws a logged one. `episode` needs `scenario`, `number`, `seed` and
     `metrics` (an EpisodeMetrics or None), as a LoggedEpisode has: what
     terl_rt.envs draws its frames with."""
-    canvas = _Canvas.of(episode.scenario.arena, size, _SUPERSAMPLE)
-    fonts = (_font(15 * _SUPERSAMPLE), _font(12 * _SUPERSAMPLE))
+    fonts = _fonts()
+    canvas = _Canvas.of(episode.scenario.arena, size, _SUPERSAMPLE, fonts[1])
     return _draw_frame(states, t, episode, canvas, fonts, final=final)
 
 
@@ -359,8 +403,8 @@ def render(
     if not states:
         raise RenderError(f"{path}: episode {episode} has no complete step to draw")
     last = len(states) - 1
-    canvas = _Canvas.of(entry.scenario.arena, size, _SUPERSAMPLE)
-    fonts = (_font(15 * _SUPERSAMPLE), _font(12 * _SUPERSAMPLE))
+    fonts = _fonts()
+    canvas = _Canvas.of(entry.scenario.arena, size, _SUPERSAMPLE, fonts[1])
 
     def frame(t: int) -> Image.Image:
         return _draw_frame(states, t, entry, canvas, fonts, final=t == last)
