@@ -126,14 +126,22 @@ def test_report_refuses_existing_results_before_evaluating(files, tmp_path):
     assert not (tmp_path / "results.png").exists()
 
 
-def test_report_refuses_the_shipped_docs_by_default(files, monkeypatch):
+def test_report_refuses_the_shipped_docs_without_force(files, monkeypatch):
     repo = Path(__file__).resolve().parents[1]
     before = (repo / "docs" / "results.md").read_bytes()
     monkeypatch.chdir(repo)
     result = invoke("report", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "1",
-                    "--max-steps", "2")
+                    "--max-steps", "2", "--out", "docs")
     assert_one_error(result, "results.md", "--force")
     assert (repo / "docs" / "results.md").read_bytes() == before
+
+
+def test_report_writes_into_report_of_the_working_folder_by_default(files, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    result = invoke("report", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "1",
+                    "--max-steps", "2")
+    assert result.exit_code == 0, result.output
+    assert {path.name for path in (tmp_path / "report").iterdir()} == {"results.md", "results.png"}
 
 
 def test_report_with_force_replaces_results_and_makes_the_folder(files, tmp_path):
