@@ -10,6 +10,7 @@ import click
 from terl_rt.cli.options import (
     MAX_WORKERS,
     BadInput,
+    IntRange,
     episodes_option,
     json_option,
     max_steps_option,
@@ -32,10 +33,10 @@ from terl_rt.evaluation.speed import (
 )
 
 steps_option = click.option(
-    "--steps", type=click.IntRange(min=1, max=10_000_000), default=500, show_default=True, help="Timed steps."
+    "--steps", type=IntRange(min=1, max=10_000_000), default=500, show_default=True, help="Timed steps."
 )
 envs_option = click.option(
-    "--envs", "num_envs", type=click.IntRange(min=1, max=4096), default=1, show_default=True,
+    "--envs", "num_envs", type=IntRange(min=1, max=4096), default=1, show_default=True,
     help="Environments stepped together (a batch).",
 )
 
@@ -139,11 +140,11 @@ def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_jso
 @seed_option
 @max_steps_option
 @click.option(
-    "--workers", "worker_counts", type=click.IntRange(min=1, max=MAX_WORKERS), multiple=True, default=(1, 2),
+    "--workers", "worker_counts", type=IntRange(min=1, max=MAX_WORKERS), multiple=True, default=(1, 2),
     show_default=True, help="Worker counts to time (repeat for several).",
 )
 @click.option(
-    "--repeat", type=click.IntRange(min=1, max=100), default=1, show_default=True,
+    "--repeat", type=IntRange(min=1, max=100), default=1, show_default=True,
     help="Rounds of local then Ray runs; each backend's best round counts.",
 )
 @json_option
