@@ -60,4 +60,4 @@ def test_a_corrupt_line_is_named(tmp_path):
 
 def test_plot_command_exits_2_with_one_line_on_a_missing_run(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "absent"), "-o", str(tmp_path / "c.png")]) == 2
-    assert capsys.readouterr().err.startswith("error:")
+    assert capsys.readouterr().err.startswith("Error:")
