@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 from training.checkpoint import load_network
@@ -87,8 +88,9 @@ def provenance_lines(onnx: str | Path, recipe: str | Path) -> list[str]:
     """The card's lines that tie a shipped file to what made it: its recipe and the sha256 of its
     weights (the ONNX file's bytes, as `terl-rt info` and OnnxPolicy.sha256 report them)."""
     digest = hashlib.sha256(Path(onnx).read_bytes()).hexdigest()
+    link = os.path.relpath(recipe, Path(onnx).parent)  # the card lies beside its policy
     return [
-        f"- **Recipe**: [`{recipe}`](../{recipe}) (`python -m training run {recipe} --out runs/{Path(onnx).stem}`).",
+        f"- **Recipe**: [`{recipe}`]({link}) (`python -m training run {recipe} --out runs/{Path(onnx).stem}`).",
         f"- **Weights**: `{onnx}`, sha256 `{digest}`.",
     ]
 

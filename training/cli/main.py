@@ -11,6 +11,7 @@ from training.cli.bench import bench_command
 from training.cli.card import card_command
 from training.cli.curves import plot_command, snapshots_command
 from training.cli.export import export_command
+from training.cli.run import run_command
 from training.cli.train import train_command
 from training.cli.values import values_command
 from training.config import ConfigError
@@ -28,12 +29,13 @@ class TrainingGroup(TerlGroup):
 @click.option("--debug", is_flag=True, help="Show full tracebacks of user errors.")
 @click.pass_context
 def cli(ctx: click.Context, debug: bool) -> None:
-    """Train pursuer Q-networks (TERL, its baselines and ablations), export them as ONNX
-    policies, write their cards, plot and time runs. Every subcommand has its own --help."""
+    """Train pursuer Q-networks (TERL, its baselines and ablations), make the shipped policies
+    from their recipes (recipes/*.toml), export them as ONNX policies, write their cards, plot
+    and time runs. Every subcommand has its own --help."""
     ctx.ensure_object(dict)["debug"] = debug
 
 
-for command in (train_command, export_command, card_command, snapshots_command, plot_command,
+for command in (run_command, train_command, export_command, card_command, snapshots_command, plot_command,
                 values_command, bench_command):
     cli.add_command(command)
 
