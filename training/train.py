@@ -2,15 +2,15 @@
 
 Centralised training, decentralised execution (policy.md section 2): B worlds are
 stepped together; one batched forward of the online network (or of its copy refreshed every
-`Config.actor_update_frequency` steps) chooses the action of
+`LearnerConfig.actor_update_frequency` steps) chooses the action of
 every active pursuer of every world (epsilon-greedy per pursuer), and every active
-pursuer's transition goes into one replay buffer. With `Config.mixed_scenarios` there is a
+pursuer's transition goes into one replay buffer. With `ScheduleConfig.mixed_scenarios` there is a
 group of B worlds per scenario (`WorldGroup`) and the batch steps go to the groups in turn,
 all into the one buffer (rows padded to the most evader slots).
 
 Counting: an environment step is one step of one world, so a batch step is B
-environment steps; `Config.total_steps`, `learning_starts`, `train_frequency`,
-`target_network_frequency` and the logging, evaluation and checkpoint intervals
+environment steps; `total_steps`, `learning_starts`, `train_frequency`,
+`target_network_frequency` and the logging, snapshot and checkpoint intervals
 are all in environment steps. A batch step runs one gradient update per multiple
 of `train_frequency` it crosses, which keeps the published ratio (one update of
 128 rows per 4 environment steps) for any B. The target network is copied whole every

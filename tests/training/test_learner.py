@@ -390,3 +390,22 @@ def test_a_retired_knob_away_from_its_neutral_value_is_refused():
     with pytest.raises(ConfigError, match="'n_step' was retired .* reads only at 1, got 3"):
         Config.from_dict({"n_step": 3})
     assert Config.from_dict({"eval_frequency": 100_000, "target_tau": 0.0}) == Config()
+
+
+# ---------------------------------------------------------------- one evaluator
+def test_a_snapshot_measures_what_terl_rt_eval_measures_on_the_exported_policy(tmp_path):
+    from terl_rt.evaluation.episodes import evaluate_policy
+    from terl_rt.policy.onnx_policy import OnnxPolicy
+    from training.checkpoint import export_checkpoint
+
+    run = tmp_path / "run"
+    config = tiny(total_steps=320, snapshot_frequency=320, snapshot_episodes=2, eval_max_steps=30)
+    train(config, run, show_progress=False)
+    snapshot = [r for r in records(run) if r["kind"] == "snapshot"][-1]
+    policy = OnnxPolicy(export_checkpoint(run, tmp_path / "last.onnx"))
+    for evaluation, scenario in zip(snapshot["evaluations"], ("curriculum-5", "small-11")):
+        # `terl-rt eval --scenario S --episodes 2 --seed 20240 --max-steps 30`: episode k on seed 20240 + k
+        result = evaluate_policy(policy, Scenario.preset(scenario), 2, config.run.eval_seed, max_steps=30)
+        assert evaluation["scenario"] == scenario and evaluation["seed"] == config.run.eval_seed
+        assert (evaluation["success_rate"], evaluation["steps_mean"]) == (result.success_rate, result.steps_mean)
+        assert evaluation["collision_ratio_mean"] == pytest.approx(result.collision_ratio_mean)
