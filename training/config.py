@@ -17,6 +17,7 @@ knobs that were retired (`RETIRED_FIELDS`), at the value that kept them out of t
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import typing
 from dataclasses import dataclass, field
@@ -395,11 +396,17 @@ def _has_type(value: Any, expected: Any) -> bool:
     return isinstance(value, expected)
 
 
+@functools.lru_cache(maxsize=None)
 def _has_transformer(model: str) -> bool:
-    """Whether a registered body has transformer layers (a tiny probe: such bodies record them)."""
+    """Whether a registered body has transformer layers (a tiny probe: such bodies record them).
+    The probe's weights are drawn from a forked generator: building a config never moves the
+    run's random stream (a resume reads its config after restoring the generators)."""
+    import torch
+
     from training.networks import network_classes
 
-    return network_classes()[model](hidden=4, layers=1, heads=1).num_layers > 0
+    with torch.random.fork_rng(devices=[]):
+        return network_classes()[model](hidden=4, layers=1, heads=1).num_layers > 0
 
 
 def _validate(config: Config) -> None:

@@ -409,3 +409,12 @@ def test_a_snapshot_measures_what_terl_rt_eval_measures_on_the_exported_policy(t
         assert evaluation["scenario"] == scenario and evaluation["seed"] == config.run.eval_seed
         assert (evaluation["success_rate"], evaluation["steps_mean"]) == (result.success_rate, result.steps_mean)
         assert evaluation["collision_ratio_mean"] == pytest.approx(result.collision_ratio_mean)
+
+
+def test_building_a_config_draws_no_random_numbers():
+    # A resume reads its config after restoring the generators: reading it must not move them.
+    torch.manual_seed(0)
+    before = torch.get_rng_state()
+    Config.of(model="terl-no-ts", hidden=32, heads=2)
+    Config.from_dict({"network": {"model": "iqn", "layers": 0, "heads": 0}})
+    assert torch.equal(torch.get_rng_state(), before)
