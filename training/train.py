@@ -213,11 +213,13 @@ class WorldGroup:
     """B worlds of one scenario under training: their rollout, the transition store of their
     pursuer rows, and the sums of the episodes under way."""
 
-    def __init__(self, scenario: Scenario, buffer: ReplayBuffer, config: Config, rng: np.random.Generator) -> None:
-        num_envs = config.schedule.num_envs
+    def __init__(
+        self, scenario: Scenario, num_envs: int, buffer: ReplayBuffer, data: DataConfig, gamma: float,
+        rng: np.random.Generator,
+    ) -> None:
         self.scenario = scenario
         self.rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
-        self.transitions = TransitionStore(buffer, config.data, config.learner.gamma, num_envs * scenario.pursuers)
+        self.transitions = TransitionStore(buffer, data, gamma, num_envs * scenario.pursuers)
         self.returns = np.zeros(num_envs)
         """[B] per-pursuer return of each world's episode so far (summed rewards / N)."""
         self.terms = np.zeros((num_envs, len(REWARD_TERMS)))
@@ -527,7 +529,7 @@ def train(
 
     # --- environments: a group of B worlds per scenario, stepped in turn
     num_envs = schedule.num_envs
-    groups = [WorldGroup(scenario, buffer, config, rng) for scenario in scenarios]
+    groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in scenarios]
     stage_name = stage_label(scenarios)
     if stage_name not in counters.stages:
         counters.stages.append(stage_name)
@@ -541,7 +543,7 @@ def train(
         # --- curriculum: a new stage gets new worlds; episodes under way are dropped
         stage = training_scenarios(schedule, data.reward, counters.env_step)
         if stage_label(stage) != stage_name:
-            groups = [WorldGroup(scenario, buffer, config, rng) for scenario in stage]
+            groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in stage]
             stage_name = stage_label(stage)
             if stage_name not in counters.stages:
                 counters.stages.append(stage_name)
