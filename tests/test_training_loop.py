@@ -272,6 +272,21 @@ def test_a_resume_without_its_buffer_refills_it_to_what_it_held_before_updating(
     assert long.updates < before.updates + (600 - 200 - before.replay_transitions // 3) // 4 + 1
 
 
+def test_a_refill_cut_off_goes_on_after_the_next_resume(tmp_path):
+    # The resume to 280 ends mid-refill and saves the part it refilled; the checkpoint still owes
+    # what the buffer held, so the next resume refills on instead of updating on the part.
+    config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
+                         learning_starts=80, snapshot_frequency=0, save_replay=False)
+    out = tmp_path / "run"
+    before = train(config, out, show_progress=False)
+    cut = train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    assert cut.updates == before.updates and cut.replay_transitions == before.replay_transitions
+    again = train(config.replace(total_steps=320, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    assert again.updates == before.updates  # still refilling at 320
+    note = [json.loads(line)["note"] for line in (out / METRICS_FILE).read_text().splitlines() if '"resume"' in line][-1]
+    assert "a refill cut off" in note and f"refilled to the {before.replay_transitions:,} transitions it held" in note
+
+
 # ---------------------------------------------------------------- end to end
 @pytest.mark.slow
 def test_train_checkpoint_resume_export_and_act(tmp_path):

@@ -456,11 +456,14 @@ def restore_buffer(
             buffer.load(saved)
         except ValueError as error:  # a fine-tune on a scenario with other evader slots
             unused = f"its saved replay buffer does not fit ({error})"
-    if len(buffer):
+    owed = min(buffer.capacity, counters.replay_transitions or 0)  # what it held before any refill cut off
+    if len(buffer) and len(buffer) >= owed:
         return learning_starts, 0, (
             f"resumed from {resume} at environment step {counters.env_step} with its replay buffer "
             f"({len(buffer):,} transitions)"
         )
+    if len(buffer):  # a saved buffer of a refill cut off: the refill goes on
+        unused = f"its saved replay buffer holds {len(buffer):,} transitions, a refill cut off"
     refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
     if not counters.replay_transitions:
         held = f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)"
