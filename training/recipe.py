@@ -32,7 +32,12 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-import tomllib
+import sys
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser, from PyPI (the train extra installs it there)
+    import tomli as tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
