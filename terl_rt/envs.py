@@ -57,7 +57,9 @@ except ImportError as error:  # pragma: no cover - exercised without the extra
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.evader import EvaderPolicy
 from terl_rt.sim.metrics import EpisodeMetrics
-from terl_rt.sim.observation import OBSTACLE_SLOTS, TEAMMATE_SLOTS, Observation
+from terl_rt.sim.observation import (
+    EGO_FEATURES, EVADER_FEATURES, OBSTACLE_FEATURES, OBSTACLE_SLOTS, TEAMMATE_FEATURES, TEAMMATE_SLOTS, Observation,
+)
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.state import LOGGED_FIELDS, snapshot
@@ -127,10 +129,10 @@ class TerlParallelEnv(ParallelEnv):
         self._history: list[dict[str, np.ndarray]] = []
         slots = scenario.evader_slots
         self._observation_space = spaces.Dict({
-            "ego": spaces.Box(-np.inf, np.inf, (4,), np.float32),
-            "teammates": spaces.Box(-np.inf, np.inf, (TEAMMATE_SLOTS, 7), np.float32),
-            "evaders": spaces.Box(-np.inf, np.inf, (slots, 7), np.float32),
-            "obstacles": spaces.Box(-np.inf, np.inf, (OBSTACLE_SLOTS, 5), np.float32),
+            "ego": spaces.Box(-np.inf, np.inf, (EGO_FEATURES,), np.float32),
+            "teammates": spaces.Box(-np.inf, np.inf, (TEAMMATE_SLOTS, TEAMMATE_FEATURES), np.float32),
+            "evaders": spaces.Box(-np.inf, np.inf, (slots, EVADER_FEATURES), np.float32),
+            "obstacles": spaces.Box(-np.inf, np.inf, (OBSTACLE_SLOTS, OBSTACLE_FEATURES), np.float32),
             "mask": spaces.MultiBinary(1 + TEAMMATE_SLOTS + slots + OBSTACLE_SLOTS),
         })
         self._action_space = spaces.Discrete(NUM_PURSUER_ACTIONS)

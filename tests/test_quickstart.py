@@ -1,4 +1,4 @@
-"""The training quick start (experiments/quickstart): a config the trainer accepts, as the README runs it."""
+"""The training quick start the README runs: the first segment of recipes/terl-paper.toml."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import pytest
 
 pytest.importorskip("torch")
 
-from training.config import Config  # noqa: E402
+from training.recipe import load_recipe  # noqa: E402
 
-QUICKSTART = Path(__file__).resolve().parents[1] / "experiments" / "quickstart" / "small-15.json"
+RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "terl-paper.toml"
 
 
-def test_the_quick_start_recipe_is_a_valid_config_checkpointing_every_10k_steps():
-    config = Config.from_file(QUICKSTART)
-    assert (config.model, config.hidden, config.layers, config.heads) == ("terl", 64, 2, 4)
-    assert config.scenario == "small-15" and config.curriculum
-    assert config.checkpoint_frequency == 10_000 and config.snapshot_preset == "small-15"
-    assert config.total_steps == 200_000
+def test_the_quick_start_is_the_small_terl_on_the_curriculum_with_checkpoints_and_snapshots():
+    first = load_recipe(RECIPE).segments[0].config
+    network, schedule, run = first.network, first.schedule, first.run
+    assert (network.model, network.hidden, network.layers, network.heads) == ("terl", 64, 2, 4)
+    assert schedule.curriculum and schedule.total_steps == 200_000 and schedule.train_max_steps == 500
+    assert run.checkpoint_frequency <= 20_000 and run.snapshot_frequency and run.snapshot_preset == "small-15"

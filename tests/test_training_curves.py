@@ -18,11 +18,10 @@ def write_metrics(path, records):
 
 
 RECORDS = [
-    {"kind": "train", "env_step": 1000, "success_rate": None, "mean_return": None, "eval": None},
+    {"kind": "train", "env_step": 1000, "success_rate": None, "mean_return": None},
     {"kind": "stage", "env_step": 1500, "stage": "curriculum-2"},
-    {"kind": "train", "env_step": 2000, "success_rate": 0.0, "mean_return": -900.0, "eval": None},
-    {"kind": "train", "env_step": 3000, "success_rate": 0.5, "mean_return": -100.0,
-     "eval": {"success_rate": 0.25}},
+    {"kind": "train", "env_step": 2000, "success_rate": 0.0, "mean_return": -900.0},
+    {"kind": "train", "env_step": 3000, "success_rate": 0.5, "mean_return": -100.0},
 ]
 
 
@@ -60,4 +59,4 @@ def test_a_corrupt_line_is_named(tmp_path):
 
 def test_plot_command_exits_2_with_one_line_on_a_missing_run(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "absent"), "-o", str(tmp_path / "c.png")]) == 2
-    assert capsys.readouterr().err.startswith("error:")
+    assert capsys.readouterr().err.startswith("Error:")

@@ -18,13 +18,12 @@ from terl_rt.sim.simulator import Simulator
 from terl_rt.sim.world import StepResult, World
 from training.__main__ import main
 from training.checkpoint import read_counters
-from training.config import Config, ConfigError, packaged_configs
+from training.config import Config, ConfigError
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.buffer import ReplayBuffer
 from training.train import (
     METRICS_FILE,
     build_learner,
-    curriculum_scenario,
     learn,
     recent_means,
     train,
@@ -35,10 +34,10 @@ from training.train import (
 
 def tiny_config(**changes) -> Config:
     """H=32, L=1, h=2 and short intervals: a run of a few thousand steps takes seconds."""
-    base = Config(
+    base = Config.of(
         model="terl", hidden=32, layers=1, heads=2, total_steps=1600, num_envs=8,
         buffer_size=20_000, learning_starts=400, target_network_frequency=400,
-        eval_frequency=800, eval_episodes=2, eval_max_steps=30,
+        snapshot_frequency=800, snapshot_episodes=2, eval_max_steps=30,
         log_frequency=400, checkpoint_frequency=800,
     )
     return base.replace(**changes)
@@ -106,48 +105,40 @@ def test_epsilon_falls_linearly_over_the_first_quarter_then_stays():
 
 @pytest.mark.parametrize("variant", ["paper", "published"])
 def test_training_worlds_use_the_configs_reward_variant(variant):
-    config = Config(reward=variant, total_steps=700)
-    assert [scenario.reward for scenario in training_scenarios(config, 0)] == [variant]
+    config = Config.of(reward=variant, total_steps=700)
+    assert [scenario.reward for scenario in training_scenarios(config.schedule, variant, 0)] == [variant]
     mixed = config.replace(curriculum=False, mixed_scenarios=("medium-48",))
-    assert [scenario.reward for scenario in training_scenarios(mixed, 0)] == [variant, variant]
+    assert [scenario.reward for scenario in training_scenarios(mixed.schedule, variant, 0)] == [variant, variant]
 
 
 def test_unknown_reward_variant_is_a_config_error():
     with pytest.raises(ConfigError, match="reward: unknown variant 'shaped'"):
-        Config(reward="shaped")
+        Config.of(reward="shaped")
 
 
-def test_curriculum_stage_shares_and_training_episode_limit_come_from_the_config():
-    config = tiny_config(total_steps=1000, curriculum_shares=(1.0, 1.0, 1.0, 1.0, 6.0), train_max_steps=500)
-    names = {step: training_scenarios(config, step)[0].name for step in (0, 99, 100, 399, 400, 999)}
-    assert names == {0: "curriculum-1", 99: "curriculum-1", 100: "curriculum-2", 399: "curriculum-4",
-                     400: "curriculum-5", 999: "curriculum-5"}
-    assert training_scenarios(config, 0)[0].max_steps == 500
-    with pytest.raises(ConfigError, match="curriculum_shares: must be 5 positive numbers"):
-        tiny_config(curriculum_shares=(1.0, 2.0))
+def test_the_training_episode_limit_comes_from_the_config():
+    config = tiny_config(total_steps=1000, train_max_steps=500)
+    assert training_scenarios(config.schedule, "paper", 0)[0].max_steps == 500
 
 
 def test_curriculum_stages_start_at_the_published_fractions_of_any_run():
-    # Published: stages from 0, 2 M, 4 M, 5 M, 6 M of 7 M steps.
-    for step in (0, 1_999_999, 2_000_000, 4_500_000, 6_999_999):
-        assert curriculum_scenario(step, 7_000_000) == curriculum_stage(step)
     # A 7,000-step run: boundaries at 2,000, 4,000, 5,000, 6,000.
-    names = {step: curriculum_scenario(step, 7_000).name for step in (0, 1999, 2000, 3999, 4000, 5000, 6000, 6999)}
+    names = {step: curriculum_stage(step, 7_000).name for step in (0, 1999, 2000, 3999, 4000, 5000, 6000, 6999)}
     assert names == {
         0: "curriculum-1", 1999: "curriculum-1", 2000: "curriculum-2", 3999: "curriculum-2",
         4000: "curriculum-3", 5000: "curriculum-4", 6000: "curriculum-5", 6999: "curriculum-5",
     }
     # 1,000 steps: stage 2 starts at 2/7 * 1000 = 285.7, so step 286.
-    assert curriculum_scenario(285, 1000).name == "curriculum-1"
-    assert curriculum_scenario(286, 1000).name == "curriculum-2"
+    assert curriculum_stage(285, 1000).name == "curriculum-1"
+    assert curriculum_stage(286, 1000).name == "curriculum-2"
 
 
 def test_a_run_longer_than_its_curriculum_stays_in_the_last_stage():
     config = tiny_config(total_steps=2000, curriculum_steps=1000)
-    names = {step: training_scenarios(config, step)[0].name for step in (0, 286, 999, 1000, 1999)}
+    names = {step: training_scenarios(config.schedule, "paper", step)[0].name for step in (0, 286, 999, 1000, 1999)}
     assert names == {0: "curriculum-1", 286: "curriculum-2", 999: "curriculum-5", 1000: "curriculum-5", 1999: "curriculum-5"}
     # Without curriculum_steps the boundaries scale to total_steps.
-    assert training_scenarios(config.replace(curriculum_steps=0), 999)[0].name == "curriculum-2"
+    assert training_scenarios(config.replace(curriculum_steps=0).schedule, "paper", 999)[0].name == "curriculum-2"
 
 
 # ---------------------------------------------------------------- replay
@@ -205,7 +196,8 @@ def test_stored_transition_is_done_when_the_pursuer_collided_and_truncation_boot
     )
     rows = np.flatnonzero(acted)
     buffer = ReplayBuffer(10, evader_slots=8)
-    store = TransitionStore(buffer, tiny_config(), 6)
+    config = tiny_config()
+    store = TransitionStore(buffer, config.data, config.learner.gamma, 6)
     store.add(rows, observation.rows(rows).as_inputs(), np.full((2, 3), 4), observation, result, np.random.default_rng(0))
     assert buffer.dones[:5].tolist() == [False, True, False, False, False]
     assert buffer.rewards[:5].tolist() == [0, 1, 3, 4, 5]
@@ -213,14 +205,13 @@ def test_stored_transition_is_done_when_the_pursuer_collided_and_truncation_boot
 
 
 # ---------------------------------------------------------------- config
-def test_every_model_has_a_packaged_config_with_the_published_settings():
-    assert set(packaged_configs()) == {"terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts"}
-    for name in packaged_configs():
+def test_every_model_takes_the_shipped_settings_with_its_own_body():
+    for name in ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts"):
         config = Config.for_model(name)
-        assert config.model == name and config.hidden == 256
-        assert (config.gamma, config.learning_rate, config.batch_size) == (0.99, 1e-4, 128)
-        assert (config.total_steps, config.buffer_size, config.learning_starts) == (7_000_000, 1_000_000, 3000)
-    assert (Config.for_model("terl").layers, Config.for_model("terl").heads) == (4, 8)
+        assert config.network.model == name and config.network.hidden == 64
+        assert config.learner == Config().learner and config.data == Config().data and config.schedule == Config().schedule
+    assert (Config.for_model("terl").network.layers, Config.for_model("terl-no-ts").network.heads) == (2, 4)
+    assert (Config.for_model("iqn").network.layers, Config.for_model("iqn").network.heads) == (0, 0)
 
 
 def test_config_file_with_an_unknown_key_is_an_error_naming_it(tmp_path):
@@ -234,7 +225,7 @@ def test_config_rejects_a_wrong_type_and_a_bad_value():
     with pytest.raises(ConfigError, match="batch_size"):
         Config.from_dict({"batch_size": "128"})
     with pytest.raises(ConfigError, match="heads"):
-        Config(hidden=30, heads=8)
+        Config.of(hidden=30, heads=8)
 
 
 # ---------------------------------------------------------------- learning
@@ -244,7 +235,7 @@ def test_network_overfits_a_tiny_fixed_batch():
     world = World(Scenario.preset("curriculum-3"), num_envs=4, seed=3)
     observation = world.reset()
     buffer = ReplayBuffer(1000, evader_slots=8)
-    store = TransitionStore(buffer, tiny_config(), world.num_envs * world.scenario.pursuers)
+    store = TransitionStore(buffer, tiny_config().data, 0.99, world.num_envs * world.scenario.pursuers)
     rng = np.random.default_rng(0)
     for _ in range(5):
         rows = np.flatnonzero(world.state.pursuer_active)
@@ -255,8 +246,8 @@ def test_network_overfits_a_tiny_fixed_batch():
     batch = buffer.sample(32, rng)
     config = tiny_config(learning_rate=1e-3, max_grad_norm=10.0)
     torch.manual_seed(0)
-    model, target, optimizer = build_learner(config)  # the target is never synced here
-    losses = [learn(model, target, optimizer, batch, config) for _ in range(200)]
+    model, target, optimizer = build_learner(config.network, config.learner)  # the target is never synced here
+    losses = [learn(model, target, optimizer, batch, config.learner) for _ in range(200)]
     assert np.mean(losses[-10:]) < 0.2 * np.mean(losses[:10])
 
 
@@ -265,7 +256,7 @@ def test_a_resume_without_its_buffer_refills_it_to_what_it_held_before_updating(
     # buffer of 10,000; without replay.npz the resume refills that many (about 200 more
     # steps) before its first update, however small learning_starts is.
     config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
-                         learning_starts=80, eval_frequency=0, save_replay=False)
+                         learning_starts=80, snapshot_frequency=0, save_replay=False)
     out = tmp_path / "run"
     before = train(config, out, show_progress=False)
     assert 0 < before.replay_transitions <= 600 and read_counters(out).replay_transitions == before.replay_transitions
@@ -279,6 +270,21 @@ def test_a_resume_without_its_buffer_refills_it_to_what_it_held_before_updating(
     long = train(config.replace(total_steps=600, learning_starts=8), tmp_path / "long", resume=out, show_progress=False)
     assert long.updates > before.updates  # refilled after about 200 steps, updating again after
     assert long.updates < before.updates + (600 - 200 - before.replay_transitions // 3) // 4 + 1
+
+
+def test_a_refill_cut_off_goes_on_after_the_next_resume(tmp_path):
+    # The resume to 280 ends mid-refill and saves the part it refilled; the checkpoint still owes
+    # what the buffer held, so the next resume refills on instead of updating on the part.
+    config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
+                         learning_starts=80, snapshot_frequency=0, save_replay=False)
+    out = tmp_path / "run"
+    before = train(config, out, show_progress=False)
+    cut = train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    assert cut.updates == before.updates and cut.replay_transitions == before.replay_transitions
+    again = train(config.replace(total_steps=320, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    assert again.updates == before.updates  # still refilling at 320
+    note = [json.loads(line)["note"] for line in (out / METRICS_FILE).read_text().splitlines() if '"resume"' in line][-1]
+    assert "a refill cut off" in note and f"refilled to the {before.replay_transitions:,} transitions it held" in note
 
 
 # ---------------------------------------------------------------- end to end
@@ -303,8 +309,9 @@ def test_train_checkpoint_resume_export_and_act(tmp_path):
     resumed_at = next(i for i, r in enumerate(records) if r["kind"] == "resume")
     assert "refilled" in records[resumed_at]["note"]
     assert {r["stage"] for r in records[resumed_at + 1 :] if r["kind"] == "train"} == {"curriculum-5"}
-    assert records[-1]["kind"] == "train" and records[-1]["eval"]["episodes"] == 2
-    assert "return_terms" in records[-1]
+    assert records[-1]["kind"] == "train" and "return_terms" in records[-1]
+    snapshot = [r for r in records if r["kind"] == "snapshot"][-1]
+    assert [e["episodes"] for e in snapshot["evaluations"]] == [2, 2]
 
     onnx_path = tmp_path / "exported" / "tiny.onnx"
     assert main(["export", str(out), "-o", str(onnx_path)]) == 0
@@ -332,21 +339,21 @@ def test_recent_means_split_the_return_by_reward_term():
 
 @pytest.mark.slow
 def test_resume_with_a_new_learning_rate_and_refill_replaces_the_checkpoints(tmp_path):
-    config = tiny_config(total_steps=800, learning_rate=2.5e-4, eval_frequency=0, save_replay=False)
+    config = tiny_config(total_steps=800, learning_rate=2.5e-4, snapshot_frequency=0, save_replay=False)
     train(config, tmp_path / "run", show_progress=False)
     resume = ["--total-steps", "1200", "--learning-rate", "5e-5", "--learning-starts", "200", "--quiet"]
     assert main(["train", "--resume", str(tmp_path / "run"), *resume]) == 0
     saved = torch.load(tmp_path / "run" / "optimizer.pt", weights_only=True)
     assert [group["lr"] for group in saved["param_groups"]] == [5e-5]
     written = json.loads((tmp_path / "run" / "config.json").read_text())
-    assert (written["learning_rate"], written["learning_starts"]) == (5e-5, 200)
+    assert (written["learner"]["learning_rate"], written["data"]["learning_starts"]) == (5e-5, 200)
     records = [json.loads(line) for line in (tmp_path / "run" / METRICS_FILE).read_text().splitlines()]
     assert "for at least 200 environment steps" in next(r["note"] for r in records if r["kind"] == "resume")
 
 
 @pytest.mark.slow
 def test_dqn_trains_and_exports(tmp_path):
-    config = tiny_config(model="dqn", layers=0, heads=0, total_steps=800, eval_frequency=0)
+    config = tiny_config(model="dqn", layers=0, heads=0, total_steps=800, snapshot_frequency=0)
     counters = train(config, tmp_path / "dqn", show_progress=False)
     assert counters.env_step == 800 and counters.updates == (800 - 400) // 4
     assert main(["export", str(tmp_path / "dqn" / "model.safetensors"), "-o", str(tmp_path / "dqn.onnx")]) == 0
@@ -354,7 +361,7 @@ def test_dqn_trains_and_exports(tmp_path):
 
 
 def test_train_refuses_to_overwrite_a_checkpoint(tmp_path, capsys):
-    config = tiny_config(total_steps=80, learning_starts=0, eval_frequency=0)
+    config = tiny_config(total_steps=80, learning_starts=0, snapshot_frequency=0)
     train(config, tmp_path, show_progress=False)
     assert main(["train", "--model", "terl", "--out", str(tmp_path)]) == 2
     assert "--resume" in capsys.readouterr().err

@@ -6,7 +6,9 @@ few seconds: a tiny network, a few hundred environment steps."""
 
 from __future__ import annotations
 
+import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -19,11 +21,10 @@ from training.train import METRICS_FILE
 
 
 def smoke_config(**changes) -> Config:
-    return Config(
+    return Config.of(
         model="terl", hidden=16, layers=1, heads=2, total_steps=320, num_envs=4, batch_size=32,
         buffer_size=5_000, learning_starts=80, target_network_frequency=160,
-        eval_frequency=320, eval_episodes=1, eval_max_steps=10, snapshot_frequency=0,
-        log_frequency=160, checkpoint_frequency=160,
+        eval_max_steps=10, snapshot_frequency=0, log_frequency=160, checkpoint_frequency=160,
     ).replace(**changes)
 
 
@@ -58,7 +59,7 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     config.to_file(config_file)
     assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"]) == 0
     card_path = tmp_path / "iqn.md"
-    assert main(["card", str(out), "--onnx", "exported/comparison/iqn.onnx", "--config", str(config_file),
+    assert main(["card", str(out), "--onnx", "exported/comparison/iqn.onnx", "--recipe", "recipes/comparison/iqn.toml",
                  "-o", str(card_path)]) == 0
     card = card_path.read_text()
     counters = read_counters(out)
@@ -71,3 +72,6 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     assert len(snapshots) == 2
     assert sum(line.startswith("| 0 k |") for line in card.splitlines()) == 2
     assert f"at {counters.best_step:,} steps" in card
+    digest = hashlib.sha256(Path("exported/comparison/iqn.onnx").read_bytes()).hexdigest()
+    assert f"- **Weights**: `exported/comparison/iqn.onnx`, sha256 `{digest}`." in card
+    assert "- **Recipe**: [`recipes/comparison/iqn.toml`]" in card

@@ -1,9 +1,9 @@
-"""Replay memory of per-pursuer transitions, and the n-step window that feeds it.
+"""Replay memory of per-pursuer transitions.
 
 One row is one pursuer's transition (s, a, R, s', done, discount): observations in the
 contract layout (ego [4], teammates [P, 7], evaders [E, 7], obstacles [O, 5] float32,
-mask [1 + P + E + O] bool), action uint8, R the (n-step) return float32, done bool,
-discount = gamma^k for the k steps R sums. Rows do not depend on how many pursuers a
+mask [1 + P + E + O] bool), action uint8, R the taught reward float32, done bool,
+discount = gamma (a column of its own, so replay files of every run read alike). Rows do not depend on how many pursuers a
 scenario has, so curriculum stages share one buffer. A row takes about 1 KB with E = 8
 (the observation is stored twice). The buffer saves to and loads from one .npz file
 (plain arrays, no pickles).
@@ -32,13 +32,13 @@ class ReplayBatch(NamedTuple):
     actions: np.ndarray
     """[R] int64 pursuer action indices."""
     rewards: np.ndarray
-    """[R] float32 returns of the k steps the transition spans (k = 1 without n-step)."""
+    """[R] float32 taught rewards (terl_rt.sim.reward.taught_reward)."""
     next_observations: dict[str, np.ndarray]
-    """like `observations`, k steps later (before any reset)."""
+    """like `observations`, a step later (before any reset)."""
     dones: np.ndarray
     """[R] float32: 1.0 where the pursuer's transition ends its episode (no bootstrap)."""
     discounts: np.ndarray
-    """[R] float32: gamma^k, the discount of the bootstrapped value."""
+    """[R] float32: gamma, the discount of the bootstrapped value."""
 
 
 class ReplayBuffer:
@@ -204,76 +204,3 @@ def trim_padding(inputs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         start += slots
     trimmed["mask"] = mask[:, np.concatenate(kept_columns)]
     return trimmed
-
-
-class NStepWindow:
-    """Turns per-step transitions of fixed rows (pursuer b * N + i of B worlds) into
-    n-step transitions: R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}, bootstrapped
-    from s_{t+k} with gamma^k, k = n, or fewer where the pursuer's transition ends (done)
-    or its episode stops (truncation or reset: bootstrapped, or done if it is terminal).
-
-    With n = 1 every step comes out as it goes in, with discount gamma.
-    """
-
-    def __init__(self, n: int, gamma: float, num_rows: int, shapes: Mapping[str, tuple[int, ...]]) -> None:
-        """`num_rows` rows (pursuers) of observations with these per-row shapes, nothing pending."""
-        self.n, self.gamma = n, gamma
-        self.num_rows = num_rows
-        self.states = {
-            key: np.zeros((num_rows, self.n) + shape, np.bool_ if key == "mask" else np.float32)
-            for key, shape in shapes.items()
-        }
-        self.actions = np.zeros((num_rows, self.n), np.int64)
-        self.returns = np.zeros((num_rows, self.n))
-        self.age = np.zeros((num_rows, self.n), np.int64)
-        """steps summed into each pending slot; 0 = empty."""
-        self.slot = 0
-        """the slot the next step opens (the same for every row: rows step together)."""
-
-    def push(
-        self,
-        rows: np.ndarray,
-        states: Mapping[str, np.ndarray],
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_states: Mapping[str, np.ndarray],
-        dones: np.ndarray,
-        stops: np.ndarray,
-    ) -> tuple[np.ndarray, ReplayBatch]:
-        """Add one step of the rows that acted and return the transitions it completes.
-
-        rows [R] int row numbers; states / next_states [R, ...] by input name; actions,
-        rewards [R]; dones [R] bool: the transition is terminal (no bootstrap); stops [R]
-        bool: the pursuer's episode stops here anyway (truncation), everything pending is
-        bootstrapped from next_states. Returns the window row of each completed transition
-        [K] and the transitions (K rows, returns in `rewards`), oldest first within a row.
-        """
-        slot = self.slot
-        self.slot = (slot + 1) % self.n
-        pending = self.age[rows] > 0  # [R, n]
-        self.returns[rows] += np.where(pending, self.gamma ** self.age[rows] * rewards[:, None], 0.0)
-        self.age[rows] += pending
-        for key, values in states.items():
-            self.states[key][rows, slot] = values
-        self.actions[rows, slot] = actions
-        self.returns[rows, slot] = rewards
-        self.age[rows, slot] = 1
-
-        age = self.age[rows]
-        flush = (dones | stops)[:, None]
-        out = (age > 0) & ((age >= self.n) | flush)  # [R, n]
-        # oldest first: slots in the order they were opened, ending with the current one
-        order = (slot + 1 + np.arange(self.n)) % self.n
-        which_row, which_slot = np.nonzero(out[:, order])
-        which_slot = order[which_slot]
-        source = rows[which_row]
-        completed = ReplayBatch(
-            observations={key: values[source, which_slot] for key, values in self.states.items()},
-            actions=self.actions[source, which_slot],
-            rewards=self.returns[source, which_slot].astype(np.float32),
-            next_observations={key: values[which_row] for key, values in next_states.items()},
-            dones=dones[which_row],
-            discounts=(self.gamma ** self.age[source, which_slot]).astype(np.float32),
-        )
-        self.age[source, which_slot] = 0
-        return source, completed

@@ -8,7 +8,9 @@ the cards of runs trained the same way read the same way.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 from pathlib import Path
 
 from training.checkpoint import load_network
@@ -82,15 +84,26 @@ def evaluation_lines(comparison: str | Path, model: str) -> list[str]:
     return lines
 
 
+def provenance_lines(onnx: str | Path, recipe: str | Path) -> list[str]:
+    """The card's lines that tie a shipped file to what made it: its recipe and the sha256 of its
+    weights (the ONNX file's bytes, as `terl-rt info` and OnnxPolicy.sha256 report them)."""
+    digest = hashlib.sha256(Path(onnx).read_bytes()).hexdigest()
+    link = os.path.relpath(recipe, Path(onnx).parent)  # the card lies beside its policy
+    return [
+        f"- **Recipe**: [`{recipe}`]({link}) (`python -m training run {recipe} --out runs/{Path(onnx).stem}`).",
+        f"- **Weights**: `{onnx}`, sha256 `{digest}`.",
+    ]
+
+
 def model_card(
-    run: str | Path, onnx: str | Path, config_file: str, machine: str, comparison: str | Path | None = None,
+    run: str | Path, onnx: str | Path, recipe: str | Path, machine: str, comparison: str | Path | None = None,
 ) -> str:
     """The markdown card of the policy `onnx` exported from run folder `run`'s best snapshot.
 
     Args:
-        run: the run folder (checkpoint, metrics.jsonl, best/).
-        onnx: the shipped ONNX file, as the card names it.
-        config_file: the config the run was started from, as the card names it.
+        run: the run folder (checkpoint, metrics.jsonl, best/): the recipe's last segment.
+        onnx: the shipped ONNX file, as the repository names it (read for its sha256).
+        recipe: the recipe that made it, as the repository names it.
         machine: where it trained, in words.
         comparison: a comparison.json of `terl-rt report` holding this model (its evaluation
             section); None: the card points to docs/comparison.md.
@@ -99,45 +112,46 @@ def model_card(
     best = run / "best"
     model, config, best_counters = load_network(best if best.is_dir() else run)
     _, _, counters = load_network(run)
+    network, learner, data = config.network, config.learner, config.data
     parameters = sum(p.numel() for p in model.parameters())
     body = " ".join(type(model).__doc__.split("\n\n")[0].split(";")[0].split()).rstrip(".") + "."
     snapshots = [r for r in read_metrics(run / "metrics.jsonl") if r.get("kind") == "snapshot"]
-    name = PAPER_NAMES.get(config.model, config.model)
-    size = f"H = {config.hidden}" + (f", L = {config.layers}, h = {config.heads}" if config.layers else "")
+    name = PAPER_NAMES.get(network.model, network.model)
+    size = f"H = {network.hidden}" + (f", L = {network.layers}, h = {network.heads}" if network.layers else "")
     lines = [
         f"# {onnx} — {name}, a run of {counters.env_step // 1000} k environment steps",
         "",
-        f"The `{config.model}` network of the paper's comparison (policy.md sections 1 and 4), trained with",
-        "the recipe, budget, curriculum, seed and snapshot rule of the shipped `exported/terl.onnx`",
-        "(its card: `exported/terl.md`); only the network differs.",
+        f"The `{network.model}` network of the paper's comparison (policy.md sections 1 and 4), trained with",
+        "the shipped settings, budget, curriculum, seed and snapshot rule; only the network differs.",
+        "",
+        *provenance_lines(onnx, recipe),
         "",
         "## Model",
         f"- {body}",
         f"- {size}: **{parameters:,} parameters**.",
         "",
         "## Training",
-        f"- Config: `{config_file}` (reward `{config.reward}`, learning rate {config.learning_rate:g}, "
-        f"dropout {config.dropout:g}, batch {config.batch_size}, {config.num_envs} worlds, seed {config.seed}); "
-        f"command `python -m training train --config {config_file} --out runs/{Path(onnx).stem} --threads 1`.",
+        f"- Reward `{data.reward}`, learning rate {learner.learning_rate:g}, dropout {network.dropout:g}, "
+        f"batch {learner.batch_size}, {config.schedule.num_envs} worlds, seed {config.run.seed}.",
         f"- **{counters.env_step:,} environment steps, {counters.updates:,} gradient updates, "
         f"{counters.episodes:,} episodes, {counters.wall_seconds:,.0f} s** ({counters.wall_seconds / 3600:.1f} h) "
         f"on {machine}.",
         f"- Shipped: the best snapshot, at {best_counters.env_step:,} steps "
         f"(score {counters.best_score:.3f}: mean over its evaluations of success - collision ratio - "
-        f"time / limit), exported with `python -m training export {run}/best`; the run's checkpoint "
-        f"(resumable) and metrics are in `{run}/`.",
+        "time / limit).",
         *never_encircled(snapshots),
         "",
         "## Snapshot evaluations",
         "",
-        "Greedy, on fixed seeds, every snapshot of the run: success / travel time / collision ratio of",
-        f"{config.snapshot_episodes} episodes of the current curriculum stage and of {config.snapshot_preset}.",
+        "Greedy, episode k with seed + k (terl_rt.evaluation), every snapshot of the run: success / travel time /",
+        f"collision ratio of {config.run.snapshot_episodes} episodes of the current curriculum stage and of "
+        f"{config.run.snapshot_preset}.",
         "",
-        *snapshot_table(snapshots, config.snapshot_preset),
+        *snapshot_table(snapshots, config.run.snapshot_preset),
         "",
         "## Evaluation on the paper's presets",
         "",
-        *(evaluation_lines(comparison, config.model) if comparison is not None else
+        *(evaluation_lines(comparison, network.model) if comparison is not None else
           ["Beside TERL and the other baselines in `docs/comparison.md` (`terl-rt report --policy exported`)."]),
         "",
     ]

@@ -3,13 +3,11 @@
 A checkpoint is a folder (the run's output folder) holding the last save:
 - model.safetensors, target.safetensors: online and target network weights;
 - optimizer.pt: the Adam state dict (torch.save, read back with weights_only=True);
-- config.json: the `Config` of the run;
+- config.json: the `Config` of the run (by part; earlier runs wrote it flat, which still reads);
 - state.json: counters and the Python, NumPy and torch RNG states, written last,
   so a folder with a state.json holds a complete checkpoint.
-A snapshot (`save_snapshot`, Config.keep_snapshots) holds the online network, config.json
-and a state.json of counters alone: it exports and evaluates, it does not resume. An
-averaged snapshot (`average_snapshots`) is one whose weights are the mean of several; its
-state.json also lists them ("averaged_from").
+A snapshot (`save_snapshot`, RunConfig.keep_snapshots) holds the online network, config.json
+and a state.json of counters alone: it exports and evaluates, it does not resume.
 Nothing here unpickles arbitrary objects.
 """
 
@@ -24,11 +22,10 @@ from typing import Any
 
 import numpy as np
 import torch
-from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from training.config import NETWORK_FIELDS, Config, changed_fields
+from training.config import Config, NetworkConfig
 from training.export import export_onnx
 from training.networks import QNetwork, build_network
 
@@ -41,8 +38,6 @@ CONFIG_FILE = "config.json"
 STATE_FILE = "state.json"
 META_TRAINING_CONFIG = "terl.training_config"
 """Metadata key of an exported policy: the training Config as JSON (training's own, not the contract's)."""
-META_AVERAGED_FROM = "terl.averaged_from"
-"""Metadata key of a policy exported from an averaged snapshot: the snapshots averaged, as JSON."""
 
 
 @dataclass
@@ -66,14 +61,17 @@ class Counters:
     replay_transitions: int | None = None
     """transitions the replay buffer held at this checkpoint: what a resume without the saved
     buffer refills before updating again (None in checkpoints from before it was recorded)."""
+    snapshot_evaluator: str | None = None
+    """what measured the snapshots behind best_score (training.train.SNAPSHOT_EVALUATOR; None in
+    checkpoints from before snapshots ran through terl_rt.evaluation)."""
 
 
-def network_from_config(config: Config) -> QNetwork:
-    """The network a config describes (fresh weights), its dropout layers at `config.dropout`."""
-    model = build_network(config.model, config.hidden, config.layers, config.heads)
+def network_from_config(network: NetworkConfig) -> QNetwork:
+    """The network a config's network part describes (fresh weights), its dropout layers at `network.dropout`."""
+    model = build_network(network.model, network.hidden, network.layers, network.heads)
     for module in model.modules():
         if isinstance(module, torch.nn.Dropout):
-            module.p = config.dropout
+            module.p = network.dropout
     return model
 
 
@@ -137,74 +135,6 @@ def save_snapshot(folder: str | Path, config: Config, model: QNetwork, counters:
     _write_weights(folder / MODEL_FILE, model, config, counters)
     _replace_file(folder / CONFIG_FILE, config.to_file)
     _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(counters)})
-    return folder
-
-
-def average_snapshots(sources: list[str | Path], folder: str | Path) -> Path:
-    """Write into `folder` a snapshot whose weights are the mean of the sources' online networks.
-
-    The sources (checkpoints or snapshots, at least two) must hold the same network
-    (Config.NETWORK_FIELDS); the result takes the config and counters of the one trained
-    longest. Averaging the weights of nearby snapshots of one run (stochastic weight
-    averaging, Izmailov et al. 2018) smooths the step-to-step noise of a fine-tune.
-    """
-    if len(sources) < 2:
-        raise ValueError(f"averaging needs at least two snapshots, got {len(sources)}")
-    folders = [_checkpoint_folder(source) for source in sources]
-    configs = [read_config(source) for source in folders]
-    for source, config in zip(folders[1:], configs[1:]):
-        differences = changed_fields(configs[0], config, NETWORK_FIELDS)
-        if differences:
-            raise ValueError(
-                f"{source}: another network than {folders[0]} ({', '.join(differences)} differ); "
-                "only snapshots of one network average"
-            )
-    counters = [read_counters(source) for source in folders]
-    latest = max(range(len(folders)), key=lambda index: counters[index].env_step)
-    weights = [load_file(str(source / MODEL_FILE)) for source in folders]
-    mean = {
-        name: (sum(weight[name].double() for weight in weights) / len(weights)).to(tensor.dtype)
-        for name, tensor in weights[0].items()
-    }
-    model = network_from_config(configs[latest])
-    model.load_state_dict(mean)
-    save_snapshot(folder, configs[latest], model, counters[latest])
-    averaged_from = [{"source": str(source), "env_step": count.env_step} for source, count in zip(folders, counters)]
-    _write_state(Path(folder), {**_read_state(Path(folder)), "averaged_from": averaged_from})
-    return Path(folder)
-
-
-VALUE_BIAS = "head.out.bias"
-"""The output layer's bias of every network of training.networks: one entry per action, added to
-every quantile of that action."""
-
-
-def shift_values(source: str | Path, folder: str | Path, offset: float) -> Path:
-    """Copy the checkpoint at `source` into `folder` with every Q-value of its online and target
-    networks moved by `offset` (the output layer's bias; the optimizer state, counters, RNG
-    states and config are kept, the replay buffer is not copied).
-
-    Every action of every state moves alike, so the greedy policy is unchanged; a fine-tune under
-    a reward whose returns lie far from the network's values (`python -m training values`) then
-    starts near them instead of closing the gap one Bellman backup per target copy.
-    """
-    source = _checkpoint_folder(source)
-    state = _read_state(source)
-    if "rng" not in state:
-        raise ValueError(f"{source}: a snapshot (no target network, optimizer or RNG states); shift a whole checkpoint")
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in (MODEL_FILE, TARGET_FILE):
-        weights = load_file(str(source / name))
-        if VALUE_BIAS not in weights:
-            raise ValueError(f"{source / name}: no {VALUE_BIAS} (not a network of training.networks)")
-        weights[VALUE_BIAS] = weights[VALUE_BIAS] + offset
-        with safe_open(str(source / name), framework="pt") as file:
-            metadata = file.metadata()
-        _replace_file(folder / name, lambda path: save_file(weights, str(path), metadata=metadata))
-    for name in (OPTIMIZER_FILE, CONFIG_FILE):
-        _replace_file(folder / name, lambda path: path.write_bytes((source / name).read_bytes()))
-    _write_state(folder, {**state, "shifted_values_by": state.get("shifted_values_by", 0.0) + offset})
     return folder
 
 
@@ -273,7 +203,7 @@ def load_network(source: str | Path) -> tuple[QNetwork, Config, Counters]:
     """The online network of a checkpoint (eval mode), its config and counters."""
     folder = _checkpoint_folder(source)
     config = read_config(folder)
-    model = network_from_config(config)
+    model = network_from_config(config.network)
     model.load_state_dict(load_file(str(folder / MODEL_FILE)))
     return model.eval(), config, read_counters(folder)
 
@@ -291,9 +221,8 @@ def trained_on(stages: list[str]) -> str:
 def export_checkpoint(source: str | Path, output: str | Path) -> Path:
     """Export a checkpoint's online network as a contract-v1 ONNX policy at `output`.
 
-    Adds `terl.training_steps` (environment steps), `terl.trained_on`, the training config
-    and, for an averaged snapshot, `terl.averaged_from` to the metadata; `export_onnx`
-    checks parity with torch before returning.
+    Adds `terl.training_steps` (environment steps), `terl.trained_on` and the training config
+    to the metadata; `export_onnx` checks parity with torch before returning.
     """
     model, config, counters = load_network(source)
     metadata = {
@@ -301,7 +230,4 @@ def export_checkpoint(source: str | Path, output: str | Path) -> Path:
         META_TRAINED_ON: trained_on(counters.stages),
         META_TRAINING_CONFIG: json.dumps(config.to_dict(), sort_keys=True),
     }
-    averaged_from = _read_state(_checkpoint_folder(source)).get("averaged_from")
-    if averaged_from:
-        metadata[META_AVERAGED_FROM] = json.dumps(averaged_from)
     return export_onnx(model, output, metadata)

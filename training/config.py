@@ -1,18 +1,26 @@
-"""The training configuration: one dataclass, one documented field per setting.
+"""The training configuration, nested by concern: network, learner, data (and the reward
+transform), schedule, run. Each part is a small frozen dataclass with one documented field
+per setting; each helper of the loop takes only the part it needs.
 
-Defaults are the published settings (policy.md section 2) for TERL. Step counts
-are environment steps: one batch step of `num_envs` vectorised environments is
-`num_envs` environment steps, the way the paper counts the steps of its single
-environment. Each environment step stores one transition per active pursuer.
+The defaults are the settings of the shipped TERL's first segment (`recipes/terl.toml`, run A
+of docs/training.md), which is also the recipe of every policy of the comparison: a recipe
+names only the fields it changes. Step counts are environment steps: one batch step of
+`num_envs` vectorised environments is `num_envs` environment steps, the way the paper counts
+the steps of its single environment. Each environment step stores one transition per active
+pursuer.
+
+A config is written as a JSON object of the five parts (`to_dict`); the flat objects that runs
+wrote before the split (every field at the top level) still read (`from_dict`), and so do the
+knobs that were retired (`RETIRED_FIELDS`), at the value that kept them out of the way.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import typing
-from dataclasses import dataclass
-from importlib import resources
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,222 +36,237 @@ class ConfigError(ValueError):
 
 
 @dataclass(frozen=True)
-class Config:
-    """Everything one training run needs, with the published defaults."""
+class NetworkConfig:
+    """The network: which body and its sizes (policy.md section 1)."""
 
-    # --- network
     model: str = "terl"
     """network registry name: terl, iqn, dqn, mean, terl-no-re or terl-no-ts."""
-    hidden: int = 256
-    """H: token and feature width."""
-    layers: int = 4
-    """L: transformer layers (0 for bodies without a transformer)."""
-    heads: int = 8
-    """h: attention heads, must divide H (0 for bodies without a transformer)."""
-    dropout: float = 0.1
-    """dropout probability inside the transformer layers while learning (the published 0.1;
-    on CPUs its random numbers cost about a third of an update)."""
+    hidden: int = 64
+    """H: token and feature width (the paper's 256; 64 trains about 10x faster on a CPU core)."""
+    layers: int = 2
+    """L: transformer layers (the paper's 4; 0 for bodies without a transformer)."""
+    heads: int = 4
+    """h: attention heads, must divide H (the paper's 8; 0 for bodies without a transformer)."""
+    dropout: float = 0.0
+    """dropout probability inside the transformer layers while learning (the paper's 0.1 costs
+    half an update on a CPU: docs/training.md)."""
 
-    # --- run
-    seed: int = 1
-    """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python.
-    A resume, a fine-tune included, continues the checkpoint's CPU generators instead, unless
-    `resume_reseeds`: on the CPU, changing the seed there does not start another sample of the
-    run. The CUDA generator (the quantile fractions of updates on a GPU) is not saved and is
-    seeded anew, so on a GPU it does."""
-    resume_reseeds: bool = False
-    """a resume seeds Python's, NumPy's and torch's generators anew from `seed` instead of
-    continuing the checkpoint's: fine-tunes from one checkpoint with other seeds are other
-    samples of the run (other worlds, exploration and replay draws). Off, a resume continues
-    the run bit for bit."""
-    threads: int = 2
-    """torch intra-op threads, set by the command-line entry point only."""
-    total_steps: int = 7_000_000
-    """length of training in environment steps (num_envs per batch step)."""
-    num_envs: int = 8
-    """B: environments stepped together; one batched forward acts for all their pursuers."""
-    curriculum: bool = True
-    """walk the five curriculum stages (world.md section 11), scaled to curriculum_steps."""
-    curriculum_steps: int = 0
-    """environment steps the curriculum's stage boundaries are scaled to (0: total_steps);
-    a longer run stays in the last stage after them (how a finished run is extended)."""
-    scenario: str = "small-15"
-    """preset trained on when curriculum is false (ignored otherwise)."""
-    mixed_scenarios: tuple[str, ...] = ()
-    """presets trained on beside `scenario` when curriculum is false: B worlds of each, the
-    batch steps going to `scenario`'s worlds and these in turn, every transition into the one
-    replay buffer, so no stretch of updates sees one team size alone (empty: `scenario`
-    alone). The buffer rows take the most evader slots of them, the others padded with empty slots."""
-    curriculum_shares: tuple[float, ...] = (2.0, 2.0, 1.0, 1.0, 1.0)
-    """share of curriculum_steps each of the five stages gets, in stage order (normalised;
-    the published 2 M / 2 M / 1 M / 1 M / 1 M of 7 M)."""
-    train_max_steps: int = 3000
-    """decision steps before a training episode is truncated (the published 3000)."""
-    reward: str = "paper"
-    """reward variant of the training worlds (world.md section 9): "paper" or "published"."""
 
-    # --- learning (policy.md section 2)
+@dataclass(frozen=True)
+class LearnerConfig:
+    """How the network learns from sampled transitions (policy.md section 2)."""
+
     gamma: float = 0.99
     """discount factor per decision step (0.5 s), in [0, 1]."""
-    learning_rate: float = 1e-4
+    learning_rate: float = 2.5e-4
     """Adam step size (the first, when final_learning_rate is set)."""
     final_learning_rate: float = 0.0
     """0: the step size stays learning_rate. > 0: it falls linearly from learning_rate at
-    environment step decay_start to final_learning_rate at total_steps."""
+    environment step decay_start to final_learning_rate at the schedule's total_steps."""
     decay_start: int = 0
-    """environment step at which the final_learning_rate decay begins (a fine-tune sets the
-    step it resumes from; a resume of the same run then keeps the same schedule)."""
+    """environment step at which the final_learning_rate decay begins."""
     batch_size: int = 128
     """transitions (pursuer rows) per gradient update."""
     max_grad_norm: float = 0.5
     """global gradient-norm clip."""
-    buffer_size: int = 1_000_000
+    train_frequency: int = 4
+    """environment steps per gradient update: a batch step of B envs runs the updates whose
+    multiples of train_frequency it crossed (B/4 on average)."""
+    target_network_frequency: int = 10_000
+    """environment steps between hard copies of the online network to the target."""
+    actor_update_frequency: int = 0
+    """0: the online network acts, changing with every update (the published setting). K > 0: a
+    copy of it acts, refreshed every K environment steps (and at a resume), so the data come
+    from one fixed network K steps at a time (docs/training.md, "the acting network"). A resume
+    continues bit for bit when the run's checkpoint_frequency is a multiple of K."""
+    num_quantiles: int = 8
+    """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
+    num_target_quantiles: int = 8
+    """N': fractions sampled for the target quantiles (unused by dqn)."""
+    double_dqn: bool = False
+    """double-DQN targets: the online network picks the next action, the target network values
+    it (the published trainer takes the target network's own max)."""
+    device: str = "cpu"
+    """torch device of the networks and updates ("cpu", "cuda[:K]"); rollouts stay on the CPU."""
+    bf16: bool = False
+    """run the network body of updates under bfloat16 autocast (the heads' output layers and the
+    loss stay float32); acting stays float32. 1.11x the updates/s of float32 at H = 64 on one
+    core of these CPUs (`python -m training bench`)."""
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """What enters the replay buffer: which transitions, and the reward they are taught
+    (terl_rt.sim.reward.taught_reward)."""
+
+    reward: str = "paper"
+    """reward variant of the training worlds (world.md section 9): "paper" or "published"."""
+    reward_scale: float = 1.0
+    """c: every taught reward, the collision value included, times c (returns in units of 1 / c).
+    The greedy policy is the same for any c > 0."""
+    potential_shaping: float = 0.0
+    """k: 0 teaches the reward as the variant pays it; k > 0 pays its guidance term and the
+    positive part of its cooperation term as a potential difference (taught_reward)."""
+    collision_value: float = 0.0
+    """V_c <= 0: the value a collided pursuer's terminal transition ends on, in return units
+    (0: nothing, the published setting)."""
+    success_ends_transitions: bool = True
+    """true: an episode that terminates (the last evader encircled, or fewer than 3 pursuers
+    left) ends its surviving pursuers' transitions at 0; false: they are bootstrapped, as the
+    published trainer does. Collisions always end a pursuer's transition; truncation never does."""
+    buffer_size: int = 500_000
     """replay capacity in pursuer transitions (about 1 KB each)."""
     learning_starts: int = 3000
     """environment steps collected before the first update (again after a resume)."""
-    train_frequency: int = 4
-    """environment steps per gradient update: a batch step of B envs runs the
-    updates whose multiples of train_frequency it crossed (B/4 on average)."""
-    target_network_frequency: int = 10_000
-    """environment steps between hard copies of the online network to the target (unused
-    when target_tau > 0)."""
-    actor_update_frequency: int = 0
-    """0: the online network acts, changing with every update (the published setting). K > 0: a
-    copy of it acts, refreshed every K environment steps (and at a resume), so the data come from
-    one fixed network K steps at a time. A network that works only while it changes (with 2
-    updates every batch step the greedy action among near-equal Q-values moves all the time)
-    then meets the states where it stalls, and learns their values (docs/training.md, "Values
-    that track the returns"). A resume continues bit for bit when checkpoint_frequency is a
-    multiple of K."""
-    target_tau: float = 0.0
-    """tau: 0 copies the online network whole into the target every target_network_frequency
-    steps (the published setting); tau in (0, 1] moves the target after every update instead,
-    target <- tau * online + (1 - tau) * target (a soft, Polyak update: it trails the online
-    network by about 1 / tau updates)."""
+    store_pursuers: int = 0
+    """pursuer transitions of each world step that enter the buffer, a random subset of the
+    pursuers that acted (0: all of them, the published setting)."""
+    save_replay: bool = True
+    """save the replay buffer with every checkpoint (replay.npz): a resume on the same machine
+    continues with it; without it the buffer is refilled first."""
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    """What is trained on, for how long, and how exploration falls."""
+
+    total_steps: int = 200_000
+    """length of training in environment steps (num_envs per batch step)."""
+    num_envs: int = 8
+    """B: environments stepped together; one batched forward acts for all their pursuers."""
+    curriculum: bool = True
+    """walk the five curriculum stages (world.md section 11) at their published shares
+    (2 : 2 : 1 : 1 : 1), scaled to curriculum_steps."""
+    curriculum_steps: int = 0
+    """environment steps the curriculum's stage boundaries are scaled to (0: total_steps); a
+    longer run stays in the last stage after them (how a finished run is extended)."""
+    scenario: str = "small-15"
+    """preset trained on when curriculum is false (ignored otherwise)."""
+    mixed_scenarios: tuple[str, ...] = ()
+    """presets trained on beside `scenario` when curriculum is false: B worlds of each, the batch
+    steps going to them in turn, every transition into the one buffer (its rows padded to the
+    most evader slots). Empty: `scenario` alone."""
+    train_max_steps: int = 3000
+    """decision steps before a training episode is truncated (the published 3000)."""
     start_e: float = 0.6
     """exploration probability at step 0, per pursuer."""
     end_e: float = 0.05
     """exploration probability after the decay."""
     exploration_fraction: float = 0.25
     """fraction of total_steps over which epsilon falls linearly from start_e to end_e."""
-    num_quantiles: int = 8
-    """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
-    num_target_quantiles: int = 8
-    """N': fractions sampled for the target quantiles (unused by dqn)."""
-    kappa: float = 1.0
-    """threshold of the (quantile) Huber loss, in return units."""
-    success_ends_transitions: bool = False
-    """true: an episode that terminates (the last evader encircled, or fewer than 3 pursuers
-    left) ends its surviving pursuers' transitions at 0 (no bootstrap); false: they are
-    bootstrapped, as the published trainer does (with true, in stage 1 one crash paid its two
-    teammates for ending a bad episode). Collisions always end a pursuer's transition; the step
-    limit never does (truncation is bootstrapped)."""
-    reward_scale: float = 1.0
-    """c: every taught reward, and the collision value, times c, so returns (and Q) are in units of
-    1 / c: with c = 1/20 the returns of -125 to -300 a pursuer come to -6 to -15, where the
-    quantile Huber threshold kappa = 1 and Adam's step size work (docs/training.md, "Values that
-    track the returns"). The greedy policy is the same for any c > 0."""
-    double_dqn: bool = False
-    """double-DQN targets: the online network picks the next action, the target network
-    values it (the published trainer takes the target network's own max)."""
-    n_step: int = 1
-    """n: rewards summed over up to n steps before bootstrapping with gamma^n (fewer at the
-    end of a pursuer's episode)."""
-    potential_shaping: float = 0.0
-    """k: 0 trains on the reward as the variant pays it. k > 0 pays its guidance term and the
-    positive part of its cooperation term as a potential difference instead,
-    gamma * Phi(s') - Phi(s) with Phi = k * (guidance + max(cooperation, 0)) of the state a
-    step ends in (Phi(s') = 0 after a terminal transition, Phi = 0 before an episode's first
-    step): holding a ring open then earns nothing a step, the approach still pays, and the
-    best policy of the other terms (time, collision, emergency, boundary, crowding,
-    completion) is unchanged (potential-based shaping, Ng, Harada and Russell 1999)."""
-    collision_value: float = 0.0
-    """V_c: the value a collided pursuer's (terminal) transition ends on, in return units: its
-    stored return gains gamma * V_c in the step it collides (0: nothing, the published setting).
-    Under either reward variant a collision ends a pursuer's time, emergency and crowding
-    penalties, so in a crowded endgame the -80 of a collision costs little more than staying.
-    V_c = -100 = -1 / (1 - gamma) charges the dead pursuer the time term for ever; a collision
-    still pays wherever a living pursuer expects less than V_c (crowds of 48-80 pursuers and
-    the first curriculum stages, at about -3 a step, return about -300: docs/training.md),
-    so V_c must lie below the returns of the run's worlds."""
-    emergency_weight: float = 1.0
-    """w_e: the emergency term (world.md section 9: -5 a step while closer than d_safe = 4 m to
-    an active teammate, active evader or perceived obstacle) is taught times w_e (1: as the
-    variant pays it). Nine collisions in ten are two pursuers touching in the crowd at a ring
-    (docs/training.md), where the emergency term is the only price of closing in that a
-    pursuer pays before touching; w_e > 1 raises that price and changes what is optimal,
-    unlike potential_shaping."""
-    team_penalty_weight: float = 1.0
-    """w_t: the team-wide share of the cooperation term (`paper`: the imbalance penalty, -10 to
-    every pursuer while one evader has fewer than 3 pursuers near and another more than 5;
-    `published`: -10 to every pursuer while any evader has 5 or more) is taught times w_t (1: as
-    the variant pays it). That share depends on pursuers a pursuer cannot see, and in teams of
-    48-80 it holds the returns near -300, below the value a collision ends on; w_t < 1 teaches
-    less of it and changes what is optimal, unlike potential_shaping."""
-    store_pursuers: int = 0
-    """pursuer transitions of each world step that enter the replay buffer, a random subset
-    of the pursuers that acted (0: all of them, the published setting)."""
-    device: str = "cpu"
-    """torch device of the networks and updates ("cpu", "cuda"); rollouts stay on the CPU."""
-    bf16: bool = False
-    """run the network body of updates under bfloat16 autocast (the IQN head's output layer and
-    the loss stay float32); acting stays float32. With TERL H = 64 on one thread of these
-    AVX-512 BF16 CPUs an update is 1.11x faster than trimmed float32 (`python -m training
-    bench`); bf16 keeps about 3 significant digits."""
 
-    # --- evaluation, logging, checkpoints
-    eval_frequency: int = 100_000
-    """environment steps between greedy evaluations (0: never)."""
-    eval_episodes: int = 4
-    """episodes per evaluation, run as one batch on fixed seeds."""
-    eval_seed: int = 20_240
-    """seed of the evaluation episodes (the same episodes every time for a stage)."""
-    eval_max_steps: int = 1000
-    """decision steps before an evaluation episode is truncated (world.md section 10)."""
-    log_frequency: int = 10_000
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Seeding, threads, logging, checkpoints and snapshots: nothing here changes what is learnt
+    except the seed."""
+
+    seed: int = 1
+    """seed of torch, NumPy (actions, exploration, replay sampling, world seeds) and Python. A
+    resume continues the checkpoint's CPU generators instead; the CUDA generator (the quantile
+    fractions of updates on a GPU) is not saved and is seeded anew."""
+    threads: int = 1
+    """torch intra-op threads, set by the command-line entry point only (one: two threads on a
+    shared 2-core machine stall each other)."""
+    log_frequency: int = 5000
     """environment steps between records of metrics.jsonl."""
-    checkpoint_frequency: int = 100_000
+    checkpoint_frequency: int = 20_000
     """environment steps between checkpoints (one more is written at the end)."""
-    save_replay: bool = True
-    """save the replay buffer with every checkpoint (replay.npz, beside it): a resume on the
-    same machine continues with it; without it the buffer is refilled first."""
-    snapshot_frequency: int = 0
+    snapshot_frequency: int = 20_000
     """environment steps between snapshots: the online network is evaluated greedily
-    (snapshot_episodes on fixed seeds of the current stage and of snapshot_preset) and
-    kept in best/ when it scores best so far (0: no snapshots)."""
-    snapshot_episodes: int = 8
+    (terl_rt.evaluation: snapshot_episodes of the current stage and of snapshot_preset, episode
+    k with seed snapshot_seed + k, as `terl-rt eval`) and kept in best/ when it scores best so
+    far (0: no snapshots)."""
+    snapshot_episodes: int = 4
     """episodes per scenario of a snapshot evaluation."""
-    snapshot_preset: str = "medium-48"
-    """the larger preset every snapshot is also evaluated on."""
+    snapshot_preset: str = "small-15"
+    """the preset every snapshot is also evaluated on."""
+    eval_seed: int = 20_240
+    """seed of a snapshot's first episode (episode k: eval_seed + k)."""
+    eval_max_steps: int = 1000
+    """decision steps before a snapshot episode is truncated (world.md section 10)."""
     keep_snapshots: bool = False
-    """also write every snapshot's online network to snapshots/<env_step>/ (about 0.5 MB
-    each at H = 64), to choose among them later on larger evaluations than a snapshot's."""
+    """also write every snapshot's online network to snapshots/<env_step>/ (about 0.5 MB each
+    at H = 64), to choose among them later on larger evaluations than a snapshot's."""
+
+
+SECTIONS: dict[str, type] = {
+    "network": NetworkConfig,
+    "learner": LearnerConfig,
+    "data": DataConfig,
+    "schedule": ScheduleConfig,
+    "run": RunConfig,
+}
+"""The parts of a config by name, in the order they are written."""
+
+RETIRED_FIELDS: dict[str, Any] = {
+    "resume_reseeds": False,
+    "target_tau": 0.0,
+    "n_step": 1,
+    "kappa": 1.0,
+    "emergency_weight": 1.0,
+    "team_penalty_weight": 1.0,
+    "eval_frequency": None,
+    "eval_episodes": None,
+    "curriculum_shares": [2.0, 2.0, 1.0, 1.0, 1.0],
+}
+"""Knobs that no recipe uses and that did not help (docs/training.md, "Retired knobs"), with the
+value that kept them out of the way: a flat config of an earlier run reads when each holds it
+(None: any value, the periodic greedy evaluation it set being replaced by snapshots)."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything one training run needs; the defaults are the shipped recipe's settings."""
+
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    run: RunConfig = field(default_factory=RunConfig)
 
     def __post_init__(self) -> None:
         _validate(self)
 
-    # --- construction and serialisation
+    @staticmethod
+    def of(**fields: Any) -> Config:
+        """The defaults with some fields changed, by field name (`Config.of(hidden=16)`)."""
+        return Config().replace(**fields)
+
+    def value(self, name: str) -> Any:
+        """A field by its name, whichever part holds it."""
+        if name not in SECTION_OF:
+            raise ConfigError(f"unknown field '{name}'")
+        return getattr(getattr(self, SECTION_OF[name]), name)
+
+    def replace(self, **changes: Any) -> Config:
+        """A validated copy with some fields changed, by field name."""
+        unknown = sorted(set(changes) - set(SECTION_OF))
+        if unknown:
+            raise ConfigError(f"unknown field '{unknown[0]}' (known: {', '.join(SECTION_OF)})")
+        parts = {
+            section: dataclasses.replace(
+                getattr(self, section), **{name: value for name, value in changes.items() if SECTION_OF[name] == section}
+            )
+            for section in SECTIONS
+        }
+        return Config(**parts)
+
+    # --- serialisation
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Every field, by part (JSON-serialisable)."""
+        return {section: dataclasses.asdict(getattr(self, section)) for section in SECTIONS}
+
+    def to_file(self, path: str | Path) -> None:
+        """Write the config as an indented JSON object."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
     @staticmethod
     def from_dict(data: Any, source: str = "config") -> Config:
-        """Build a config from a JSON object; unknown keys and wrong types are errors naming the key.
-
-        Missing keys take the defaults above.
-        """
-        if not isinstance(data, dict):
-            raise ConfigError(f"{source}: must be a JSON object, got {type(data).__name__}")
-        types = typing.get_type_hints(Config)
-        unknown = sorted(set(data) - set(types))
-        if unknown:
-            raise ConfigError(
-                f"{source}: unknown key '{unknown[0]}' (known: {', '.join(field_names())})"
-            )
-        for key, value in data.items():
-            if not _has_type(value, types[key]):
-                raise ConfigError(
-                    f"{source}: '{key}' must be {_type_name(types[key])}, got {value!r}"
-                )
+        """Build a config from a JSON object (see `read_fields`); missing fields take the defaults."""
+        fields = read_fields(data, source)
         try:
-            return Config(**{key: _convert(value, types[key]) for key, value in data.items()})
+            return Config().replace(**fields)
         except ConfigError as error:
             raise ConfigError(f"{source}: {error}") from None
 
@@ -263,32 +286,31 @@ class Config:
 
     @staticmethod
     def for_model(model: str) -> Config:
-        """The packaged config training/configs/<model>.json (published defaults for that model)."""
-        names = packaged_configs()
-        if model not in names:
-            raise ConfigError(f"no packaged config for model '{model}'; expected one of {names}")
-        text = resources.files("training").joinpath("configs", f"{model}.json").read_text()
-        return Config.from_dict(json.loads(text), source=f"training/configs/{model}.json")
+        """The defaults with another network body: `model`, its layers and heads 0 when it has no
+        transformer (the comparison's recipe: only the body changes)."""
+        from training.networks import network_classes
 
-    def to_dict(self) -> dict[str, Any]:
-        """Every field by name (JSON-serialisable)."""
-        return dataclasses.asdict(self)
+        if model not in network_classes():
+            raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(network_classes())}")
+        if _has_transformer(model):
+            return Config.of(model=model)
+        return Config.of(model=model, layers=0, heads=0)
 
-    def to_file(self, path: str | Path) -> None:
-        """Write the config as an indented JSON object."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
-    def replace(self, **changes: Any) -> Config:
-        """A validated copy with some fields changed."""
-        return dataclasses.replace(self, **changes)
-
+SECTION_OF: dict[str, str] = {
+    part.name: section for section, cls in SECTIONS.items() for part in dataclasses.fields(cls)
+}
+"""The part that holds each field, by field name."""
+FIELD_TYPES: dict[str, Any] = {
+    name: hint for cls in SECTIONS.values() for name, hint in typing.get_type_hints(cls).items()
+}
+"""Each field's type, by field name."""
 
 NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
 """Fields that fix the network's weights: a checkpoint continues only under the same values."""
 
 RETURN_FIELDS = (
-    "reward", "potential_shaping", "collision_value", "emergency_weight", "team_penalty_weight", "gamma", "n_step",
-    "success_ends_transitions", "reward_scale",
+    "reward", "potential_shaping", "collision_value", "gamma", "success_ends_transitions", "reward_scale",
 )
 """Fields that fix what a stored transition holds (its return, discount and done): a saved
 replay buffer is reused only under the same values."""
@@ -297,21 +319,51 @@ SNAPSHOT_FIELDS = ("curriculum", "scenario", "snapshot_preset", "snapshot_episod
 """Fields that fix what a snapshot is evaluated on: snapshot scores compare only under the same values."""
 
 
+def read_fields(data: Any, source: str = "config") -> dict[str, Any]:
+    """The fields a JSON object names, flat and typed: by part ({"network": {...}, ...}, as
+    `Config.to_dict` writes) or flat (every field at the top level, as runs wrote before the
+    split). Unknown keys, wrong types and retired knobs away from their neutral value are errors
+    naming the key; retired knobs at it are dropped."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: must be a JSON object, got {type(data).__name__}")
+    if any(key in SECTIONS for key in data):
+        flat: dict[str, Any] = {}
+        for section, values in data.items():
+            if section not in SECTIONS:
+                raise ConfigError(f"{source}: unknown part '{section}' (parts: {', '.join(SECTIONS)})")
+            if not isinstance(values, dict):
+                raise ConfigError(f"{source}: '{section}' must be an object of fields, got {values!r}")
+            misplaced = sorted(name for name in values if SECTION_OF.get(name, section) != section)
+            if misplaced:
+                raise ConfigError(f"{source}: '{misplaced[0]}' belongs in '{SECTION_OF[misplaced[0]]}', not '{section}'")
+            flat.update(values)
+    else:
+        flat = dict(data)
+    for name, neutral in RETIRED_FIELDS.items():
+        if name in flat:
+            value = flat.pop(name)
+            if neutral is not None and value != neutral:
+                raise ConfigError(
+                    f"{source}: '{name}' was retired (docs/training.md, \"Retired knobs\"); it reads only "
+                    f"at {neutral!r}, got {value!r}"
+                )
+    unknown = sorted(set(flat) - set(SECTION_OF))
+    if unknown:
+        raise ConfigError(f"{source}: unknown key '{unknown[0]}' (known: {', '.join(SECTION_OF)})")
+    for key, value in flat.items():
+        if not _has_type(value, FIELD_TYPES[key]):
+            raise ConfigError(f"{source}: '{key}' must be {_type_name(FIELD_TYPES[key])}, got {value!r}")
+    return {key: _convert(value, FIELD_TYPES[key]) for key, value in flat.items()}
+
+
 def changed_fields(before: Config, after: Config, names: tuple[str, ...]) -> list[str]:
     """The fields among `names` whose values differ between two configs, in the order given."""
-    return [name for name in names if getattr(before, name) != getattr(after, name)]
+    return [name for name in names if before.value(name) != after.value(name)]
 
 
 def field_names() -> tuple[str, ...]:
-    """Config field names, in declaration order."""
-    return tuple(f.name for f in dataclasses.fields(Config))
-
-
-def packaged_configs() -> tuple[str, ...]:
-    """Model names with a config file under training/configs/."""
-    folder = resources.files("training").joinpath("configs")
-    names = (entry.name for entry in folder.iterdir())
-    return tuple(sorted(name[: -len(".json")] for name in names if name.endswith(".json")))
+    """Config field names, part by part in declaration order."""
+    return tuple(SECTION_OF)
 
 
 def _item_type(expected: Any) -> Any:
@@ -344,71 +396,73 @@ def _has_type(value: Any, expected: Any) -> bool:
     return isinstance(value, expected)
 
 
+@functools.lru_cache(maxsize=None)
+def _has_transformer(model: str) -> bool:
+    """Whether a registered body has transformer layers (a tiny probe: such bodies record them).
+    The probe's weights are drawn from a forked generator: building a config never moves the
+    run's random stream (a resume reads its config after restoring the generators)."""
+    import torch
+
+    from training.networks import network_classes
+
+    with torch.random.fork_rng(devices=[]):
+        return network_classes()[model](hidden=4, layers=1, heads=1).num_layers > 0
+
+
 def _validate(config: Config) -> None:
     # Imported here: the registry pulls in torch, which `Config` users may not need yet.
     from training.networks import network_classes
 
+    network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
     models = sorted(network_classes())
-    if config.model not in models:
-        raise ConfigError(f"model: unknown network '{config.model}'; expected one of {models}")
-    if config.reward not in REWARD_VARIANTS:
-        raise ConfigError(f"reward: unknown variant '{config.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
-    if len(config.curriculum_shares) != len(CURRICULUM_STAGES) or not all(
-        share > 0 for share in config.curriculum_shares
-    ):
-        raise ConfigError(
-            f"curriculum_shares: must be {len(CURRICULUM_STAGES)} positive numbers, got {list(config.curriculum_shares)}"
-        )
-    if config.snapshot_preset not in PRESETS:
-        raise ConfigError(f"snapshot_preset: unknown preset '{config.snapshot_preset}'")
-    if config.device != "cpu" and not config.device.startswith("cuda"):
-        raise ConfigError(f"device: must be 'cpu' or 'cuda[:K]', got '{config.device}'")
-    for field, names in (("scenario", (config.scenario,)), ("mixed_scenarios", config.mixed_scenarios)):
-        for name in names:
-            if name not in PRESETS:
-                raise ConfigError(f"{field}: unknown preset '{name}'; presets are {', '.join(PRESETS)}")
-    if len(set((config.scenario,) + config.mixed_scenarios)) != 1 + len(config.mixed_scenarios):
-        raise ConfigError(f"mixed_scenarios: a preset appears twice in {[config.scenario, *config.mixed_scenarios]}")
+    if network.model not in models:
+        raise ConfigError(f"model: unknown network '{network.model}'; expected one of {models}")
+    if data.reward not in REWARD_VARIANTS:
+        raise ConfigError(f"reward: unknown variant '{data.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
+    if run.snapshot_preset not in PRESETS:
+        raise ConfigError(f"snapshot_preset: unknown preset '{run.snapshot_preset}'")
+    if learner.device != "cpu" and not learner.device.startswith("cuda"):
+        raise ConfigError(f"device: must be 'cpu' or 'cuda[:K]', got '{learner.device}'")
+    for name, presets in (("scenario", (schedule.scenario,)), ("mixed_scenarios", schedule.mixed_scenarios)):
+        for preset in presets:
+            if preset not in PRESETS:
+                raise ConfigError(f"{name}: unknown preset '{preset}'; presets are {', '.join(PRESETS)}")
+    if len({schedule.scenario, *schedule.mixed_scenarios}) != 1 + len(schedule.mixed_scenarios):
+        raise ConfigError(f"mixed_scenarios: a preset appears twice in {[schedule.scenario, *schedule.mixed_scenarios]}")
     positive = (
-        "hidden", "threads", "total_steps", "num_envs", "batch_size", "buffer_size",
-        "train_frequency", "target_network_frequency", "num_quantiles",
-        "num_target_quantiles", "eval_episodes", "eval_max_steps", "log_frequency",
-        "checkpoint_frequency", "train_max_steps", "n_step", "snapshot_episodes",
+        "hidden", "threads", "total_steps", "num_envs", "batch_size", "buffer_size", "train_frequency",
+        "target_network_frequency", "num_quantiles", "num_target_quantiles", "eval_max_steps", "log_frequency",
+        "checkpoint_frequency", "train_max_steps", "snapshot_episodes",
     )
     for name in positive:
-        if getattr(config, name) < 1:
-            raise ConfigError(f"{name}: must be >= 1, got {getattr(config, name)}")
-    for name in ("layers", "heads", "learning_starts", "eval_frequency", "seed", "eval_seed", "curriculum_steps",
-                 "actor_update_frequency",
-                 "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate",
-                 "emergency_weight", "team_penalty_weight"):
-        if getattr(config, name) < 0:
-            raise ConfigError(f"{name}: must be >= 0, got {getattr(config, name)}")
-    # A tiny probe tells transformer bodies (which record their layers) from the others.
-    if network_classes()[config.model](hidden=4, layers=1, heads=1).num_layers > 0:
+        if config.value(name) < 1:
+            raise ConfigError(f"{name}: must be >= 1, got {config.value(name)}")
+    for name in ("layers", "heads", "learning_starts", "seed", "eval_seed", "curriculum_steps", "actor_update_frequency",
+                 "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
+        if config.value(name) < 0:
+            raise ConfigError(f"{name}: must be >= 0, got {config.value(name)}")
+    if _has_transformer(network.model):
         for name in ("layers", "heads"):
-            if getattr(config, name) < 1:
-                raise ConfigError(
-                    f"{name}: model '{config.model}' has a transformer, needs >= 1, got {getattr(config, name)}"
-                )
-        if config.hidden % config.heads:
-            raise ConfigError(f"heads: {config.heads} must divide hidden {config.hidden}")
-    for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout", "target_tau"):
-        if not 0.0 <= getattr(config, name) <= 1.0:
-            raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(config, name)}")
-    if config.potential_shaping < 0.0:
-        raise ConfigError(f"potential_shaping: must be >= 0, got {config.potential_shaping}")
-    if config.collision_value > 0.0:
-        raise ConfigError(f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {config.collision_value}")
-    for name in ("learning_rate", "max_grad_norm", "kappa", "reward_scale"):
-        if not getattr(config, name) > 0.0:
-            raise ConfigError(f"{name}: must be > 0, got {getattr(config, name)}")
-    if config.final_learning_rate and config.decay_start >= config.total_steps:
+            if config.value(name) < 1:
+                raise ConfigError(f"{name}: model '{network.model}' has a transformer, needs >= 1, got {config.value(name)}")
+        if network.hidden % network.heads:
+            raise ConfigError(f"heads: {network.heads} must divide hidden {network.hidden}")
+    for name in ("gamma", "start_e", "end_e", "exploration_fraction", "dropout"):
+        if not 0.0 <= config.value(name) <= 1.0:
+            raise ConfigError(f"{name}: must lie in [0, 1], got {config.value(name)}")
+    if data.potential_shaping < 0.0:
+        raise ConfigError(f"potential_shaping: must be >= 0, got {data.potential_shaping}")
+    if data.collision_value > 0.0:
         raise ConfigError(
-            f"decay_start: {config.decay_start} must come before total_steps {config.total_steps} "
+            f"collision_value: must be <= 0 (a collision is never worth more than nothing), got {data.collision_value}"
+        )
+    for name in ("learning_rate", "max_grad_norm", "reward_scale"):
+        if not config.value(name) > 0.0:
+            raise ConfigError(f"{name}: must be > 0, got {config.value(name)}")
+    if learner.final_learning_rate and learner.decay_start >= schedule.total_steps:
+        raise ConfigError(
+            f"decay_start: {learner.decay_start} must come before total_steps {schedule.total_steps} "
             "for the step size to fall to final_learning_rate"
         )
-    if config.batch_size > config.buffer_size:
-        raise ConfigError(
-            f"batch_size: {config.batch_size} exceeds buffer_size {config.buffer_size}"
-        )
+    if learner.batch_size > data.buffer_size:
+        raise ConfigError(f"batch_size: {learner.batch_size} exceeds buffer_size {data.buffer_size}")

@@ -28,7 +28,7 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
     """Write a PNG of the training curves of a run.
 
-    Top: success rate of the recent episodes (line), of the greedy evaluations and of the
+    Top: success rate of the recent episodes (line) and of the
     snapshot evaluations (points; one series for the current stage, one for the snapshot
     preset; the best snapshot starred); middle: mean per-pursuer return of the recent
     episodes; bottom: their collision ratio (where logged) and the snapshots'. Curriculum stage starts are dashed vertical lines,
@@ -44,7 +44,6 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
 
     records = read_metrics(metrics_path)
     train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
-    evals = [r for r in records if r.get("kind") == "train" and r.get("eval")]
     snapshots = [r for r in records if r.get("kind") == "snapshot"]
     stages = [r for r in records if r.get("kind") == "stage"]
     resumes = [r for r in records if r.get("kind") == "resume"]
@@ -54,11 +53,6 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     fig, (top, middle, bottom) = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     steps = [r["env_step"] for r in train]
     top.plot(steps, [r["success_rate"] for r in train], label="recent episodes (exploring)")
-    if evals:
-        top.plot(
-            [r["env_step"] for r in evals], [r["eval"]["success_rate"] for r in evals],
-            "o", label="greedy evaluation",
-        )
     for index in (0, 1):  # a snapshot's evaluations: the current stage, then the snapshot preset
         shown = [r for r in snapshots if len(r["evaluations"]) > index]
         if not shown:

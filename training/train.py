@@ -2,43 +2,40 @@
 
 Centralised training, decentralised execution (policy.md section 2): B worlds are
 stepped together; one batched forward of the online network (or of its copy refreshed every
-`Config.actor_update_frequency` steps) chooses the action of
+`LearnerConfig.actor_update_frequency` steps) chooses the action of
 every active pursuer of every world (epsilon-greedy per pursuer), and every active
-pursuer's transition goes into one replay buffer. With `Config.mixed_scenarios` there is a
+pursuer's transition goes into one replay buffer. With `ScheduleConfig.mixed_scenarios` there is a
 group of B worlds per scenario (`WorldGroup`) and the batch steps go to the groups in turn,
 all into the one buffer (rows padded to the most evader slots).
 
 Counting: an environment step is one step of one world, so a batch step is B
-environment steps; `Config.total_steps`, `learning_starts`, `train_frequency`,
-`target_network_frequency` and the logging, evaluation and checkpoint intervals
+environment steps; `total_steps`, `learning_starts`, `train_frequency`,
+`target_network_frequency` and the logging, snapshot and checkpoint intervals
 are all in environment steps. A batch step runs one gradient update per multiple
 of `train_frequency` it crosses, which keeps the published ratio (one update of
 128 rows per 4 environment steps) for any B. The target network is copied whole every
-`target_network_frequency` steps, or follows the online one softly (`Config.target_tau`);
-the step size may fall linearly to the end of the run (`Config.final_learning_rate`).
+`target_network_frequency` steps; the step size may fall linearly to the end of the run
+(`LearnerConfig.final_learning_rate`).
 
-Transitions: with `Config.potential_shaping` the income terms of a pursuer's reward are
-paid as potential differences (`shaped_rewards`), the emergency term is taught times
-`Config.emergency_weight` and the team-wide share of the cooperation term times
-`Config.team_penalty_weight` (`taught_terms`), with `Config.collision_value` a collision ends
-on that value instead of 0; each pursuer's step then goes through an n-step window
-(`Config.n_step`) and, when `Config.store_pursuers` is set, only a random subset of a world
-step's pursuers enter the buffer. A pursuer's transition is terminal when it collides, and when its
-episode terminates if `Config.success_ends_transitions`; truncation is bootstrapped.
+Transitions: each pursuer's step is stored with the reward the learner is taught
+(terl_rt.sim.reward.taught_reward under `DataConfig`: shaping, collision value, scale) and,
+when `DataConfig.store_pursuers` is set, only a random subset of a world step's pursuers
+enter the buffer. A pursuer's transition is terminal when it collides, and when its episode
+terminates if `DataConfig.success_ends_transitions`; truncation is bootstrapped.
 
 metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
   episodes, updates, stage, epsilon, learning_rate, loss (mean since the last record), success_rate,
   mean_return (per pursuer: the episode's summed rewards / N), return_terms (the
   same split by reward term), team_cooperation (the team-wide share of return_terms'
-  cooperation, paid to every pursuer alike: `Config.team_penalty_weight`), collision_ratio
-  and episode_steps over the last 100 episodes, steps_per_second (this session),
-  wall_seconds (all sessions), eval (the `greedy_evaluation` dict, or null);
+  cooperation, paid to every pursuer alike), collision_ratio and episode_steps over the last
+  100 episodes, steps_per_second (this session), wall_seconds (all sessions);
 - "stage": env_step and the curriculum stage that starts there;
 - "resume": env_step and how the replay buffer was restored (loaded, or refilled);
 - "snapshot": env_step, the greedy evaluations of a snapshot (current stage and
-  `Config.snapshot_preset`), its score and whether it became the best (kept in best/;
-  with `Config.keep_snapshots` every snapshot's network is kept in snapshots/<env_step>/).
+  `RunConfig.snapshot_preset`, run by terl_rt.evaluation as `terl-rt eval` runs them), its
+  score and whether it became the best (kept in best/; with `RunConfig.keep_snapshots` every
+  snapshot's network is kept in snapshots/<env_step>/).
 
 `train` is the loop, read top to bottom; the helpers before it do one thing each.
 `benchmark` times the loop's two halves (rollout, update) apart.
@@ -47,6 +44,7 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import sys
 import time
@@ -58,28 +56,32 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
+from terl_rt.evaluation.episodes import evaluate_policy
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
-from terl_rt.sim.metrics import summarize
 from terl_rt.sim.observation import Observation
+from terl_rt.sim.reward import REWARD_TERMS, taught_reward
 from terl_rt.sim.rollout import Rollout
-from terl_rt.sim.reward import REWARD_TERMS
-from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.scenario import CURRICULUM_STARTS, CURRICULUM_STEPS, Scenario, curriculum_stage
 from terl_rt.sim.world import StepResult, World
-from training.buffer import NStepWindow, ReplayBatch, ReplayBuffer, pad_evader_slots, trim_padding
+from training.buffer import ReplayBatch, ReplayBuffer, pad_evader_slots, trim_padding
 from training.checkpoint import (
     Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot, seed_generators,
 )
-from training.config import CURRICULUM_STAGES, RETURN_FIELDS, SNAPSHOT_FIELDS, Config, changed_fields
+from training.config import (
+    CURRICULUM_STAGES, RETURN_FIELDS, SNAPSHOT_FIELDS, Config, DataConfig, LearnerConfig, NetworkConfig, RunConfig,
+    ScheduleConfig, changed_fields,
+)
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.networks import QNetwork
+from training.torch_policy import TorchPolicy, as_tensors, network_device
 
 REPLAY_FILE = "replay.npz"
-"""The saved replay buffer, beside the checkpoint files (Config.save_replay)."""
+"""The saved replay buffer, beside the checkpoint files (DataConfig.save_replay)."""
 BEST_FOLDER = "best"
 """Subfolder of the run holding the best snapshot so far, as a checkpoint."""
 SNAPSHOTS_FOLDER = "snapshots"
-"""Subfolder of the run holding every snapshot's online network by environment step (Config.keep_snapshots)."""
+"""Subfolder of the run holding every snapshot's online network by environment step (RunConfig.keep_snapshots)."""
 RECENT_EPISODES = 100
 """Finished episodes behind the success rate and mean return of the progress line and log."""
 PROGRESS_SECONDS = 1.0
@@ -89,29 +91,15 @@ METRICS_FILE = "metrics.jsonl"
 
 
 # ---------------------------------------------------------------- schedules
-def stage_starts(curriculum_steps: int, shares: tuple[float, ...]) -> list[int]:
-    """First environment step of each curriculum stage when `curriculum_steps` are split
-    by `shares` (one per stage, normalised): [5] ints, the first 0."""
-    bounds = np.cumsum((0.0,) + tuple(shares))[:-1] / sum(shares)
-    return [int(round(bound * curriculum_steps)) for bound in bounds]
-
-
-def curriculum_scenario(env_step: int, curriculum_steps: int, shares: tuple[float, ...] = (2, 2, 1, 1, 1)) -> Scenario:
-    """The curriculum stage in force at `env_step` when the stages share `curriculum_steps`
-    by `shares` (default: the published 2 M / 2 M / 1 M / 1 M / 1 M of 7 M)."""
-    starts = stage_starts(curriculum_steps, shares)
-    stage = max(index for index, start in enumerate(starts) if env_step >= start)
-    return Scenario.preset(CURRICULUM_STAGES[stage])
-
-
-def training_scenarios(config: Config, env_step: int) -> list[Scenario]:
-    """The scenarios trained on at `env_step`: the curriculum stage, or the fixed preset and
-    `config.mixed_scenarios`, with the config's reward variant and training episode limit."""
-    if config.curriculum:
-        scenarios = [curriculum_scenario(env_step, config.curriculum_steps or config.total_steps, config.curriculum_shares)]
+def training_scenarios(schedule: ScheduleConfig, reward: str, env_step: int) -> list[Scenario]:
+    """The scenarios trained on at `env_step`: the curriculum stage (terl_rt.sim.scenario.
+    curriculum_stage over `curriculum_steps`, else `total_steps`), or the fixed preset and
+    `mixed_scenarios`, with the reward variant `reward` and the training episode limit."""
+    if schedule.curriculum:
+        scenarios = [curriculum_stage(env_step, schedule.curriculum_steps or schedule.total_steps)]
     else:
-        scenarios = [Scenario.preset(name) for name in (config.scenario, *config.mixed_scenarios)]
-    return [scenario.replace(reward=config.reward, max_steps=config.train_max_steps) for scenario in scenarios]
+        scenarios = [Scenario.preset(name) for name in (schedule.scenario, *schedule.mixed_scenarios)]
+    return [scenario.replace(reward=reward, max_steps=schedule.train_max_steps) for scenario in scenarios]
 
 
 def stage_label(scenarios: list[Scenario]) -> str:
@@ -130,16 +118,6 @@ def crossings(before: int, after: int, every: int) -> int:
 
 
 # ---------------------------------------------------------------- acting
-def network_device(model: QNetwork) -> torch.device:
-    """The device of a network's weights."""
-    return next(model.parameters()).device
-
-
-def as_tensors(arrays: dict[str, np.ndarray], device: torch.device | str = "cpu") -> tuple[torch.Tensor, ...]:
-    """Observation arrays as torch tensors on `device` (no copy on the CPU), in the network's call order."""
-    return tuple(torch.from_numpy(arrays[key]).to(device, non_blocking=True) for key in INPUT_NAMES)
-
-
 def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray:
     """argmax of the eval-mode Q-values (fixed fractions, as the exported policy) of the states
     with their empty slots trimmed (`trim_padding`): [R] int64."""
@@ -167,15 +145,15 @@ def explore(chosen: np.ndarray, epsilon: float, rng: np.random.Generator) -> np.
 
 
 class TransitionStore:
-    """What goes from a batch step into the replay buffer: the n-step window over every
-    pursuer row (b * N + i) of the B worlds, and the optional per-step subsample."""
+    """What goes from a batch step into the replay buffer: every acting pursuer row (b * N + i
+    of the B worlds) with the reward it is taught, and the optional per-step subsample."""
 
-    def __init__(self, buffer: ReplayBuffer, config: Config, num_rows: int) -> None:
+    def __init__(self, buffer: ReplayBuffer, data: DataConfig, gamma: float, num_rows: int) -> None:
         self.buffer = buffer
-        self.config = config
-        self.window = NStepWindow(config.n_step, config.gamma, num_rows, buffer.shapes)
+        self.data = data
+        self.gamma = gamma
         self.potential = np.zeros(num_rows)
-        """[rows] Phi of the state each row's last step ended in (Config.potential_shaping; 0 before an episode)."""
+        """[rows] Phi of the state each row's last step ended in (DataConfig.potential_shaping; 0 before an episode)."""
 
     def add(
         self,
@@ -188,102 +166,66 @@ class TransitionStore:
     ) -> int:
         """Add the step of every pursuer that acted (rows [R] b * N + n and their states [R, ...],
         actions [B, N]); returns the transitions stored. Observations with fewer evader slots
-        than the buffer's are padded to them (`pad_evader_slots`).
-
-        Rewards and terminal flags come from `taught_rewards`.
-        """
+        than the buffer's are padded to them (`pad_evader_slots`)."""
         num_pursuers = result.collided.shape[1]
         slots = self.buffer.shapes["evaders"][0]
-        states = pad_evader_slots(states, slots)
-        next_states = pad_evader_slots(next_observation.rows(rows).as_inputs(), slots)
-        rewards, terminal, stops = taught_rewards(result, rows, self.potential, self.config)
-        sources, done = self.window.push(rows, states, actions.ravel()[rows], rewards, next_states, terminal, stops)
-        keep = np.arange(len(sources))
-        if self.config.store_pursuers:
+        rewards, terminal, _ = taught_step(result, rows, self.potential, self.data, self.gamma)
+        keep = np.arange(len(rows))
+        if self.data.store_pursuers:
             # at most store_pursuers transitions per world of this step, drawn at random
-            keep = subsample_per_group(sources // num_pursuers, self.config.store_pursuers, rng)
+            keep = subsample_per_group(rows // num_pursuers, self.data.store_pursuers, rng)
+        states = pad_evader_slots({key: value[keep] for key, value in states.items()}, slots)
+        next_states = pad_evader_slots(next_observation.rows(rows[keep]).as_inputs(), slots)
         self.buffer.add(
-            {key: value[keep] for key, value in done.observations.items()}, done.actions[keep], done.rewards[keep],
-            {key: value[keep] for key, value in done.next_observations.items()}, done.dones[keep], done.discounts[keep],
+            states, actions.ravel()[rows[keep]], rewards[keep].astype(np.float32), next_states, terminal[keep],
+            np.full(len(keep), self.gamma, np.float32),
         )
         return len(keep)
 
 
-_GUIDANCE, _COOPERATION = REWARD_TERMS.index("guidance"), REWARD_TERMS.index("cooperation")
-_EMERGENCY = REWARD_TERMS.index("emergency")
-
-
-def taught_terms(result: StepResult, rows: np.ndarray, config: Config) -> np.ndarray:
-    """The reward terms [R, len(REWARD_TERMS)] of the pursuer rows [R] (b * N + n) as the
-    learner is taught them: the emergency term times Config.emergency_weight, and the
-    cooperation term with its team-wide share (StepResult.team_cooperation) times
-    Config.team_penalty_weight; the others as the world paid them."""
-    terms = result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows]
-    terms[:, _EMERGENCY] *= config.emergency_weight
-    team = result.team_cooperation[rows // result.reward.shape[1]]  # [R], each row's world's
-    terms[:, _COOPERATION] += (config.team_penalty_weight - 1.0) * team
-    return terms
-
-
-def taught_rewards(
-    result: StepResult, rows: np.ndarray, potential: np.ndarray, config: Config
+def taught_step(
+    result: StepResult, rows: np.ndarray, potential: np.ndarray, data: DataConfig, gamma: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the learner is taught about one step of the pursuer rows [R] (b * N + n) that acted.
 
-    Returns their rewards [R] (the `taught_terms` summed, their income shaped by
-    Config.potential_shaping, a collision ending on Config.collision_value, all times
-    Config.reward_scale), whether each
-    transition is terminal [R] (the pursuer collided, or its episode terminated (all evaders
-    encircled, or too few pursuers left) when Config.success_ends_transitions; truncated
-    episodes, and terminated ones otherwise, are bootstrapped) and whether each row's episode
-    stops here [R] (terminated or truncated).
-    potential [B * N]: Phi of the state each row's last step ended in, updated in place.
+    Returns their rewards [R] (terl_rt.sim.reward.taught_reward of the terms the world paid,
+    under `data`'s shaping, collision value and scale), whether each transition is terminal [R]
+    (the pursuer collided, or its episode terminated (all evaders encircled, or too few
+    pursuers left) when `data.success_ends_transitions`; truncated episodes, and terminated
+    ones otherwise, are bootstrapped) and whether each row's episode stops here [R]
+    (terminated or truncated). potential [B * N]: Phi of the state each row's last step ended
+    in, updated in place (0 where the episode stops).
     """
     ended = (result.terminated | result.truncated)[:, None]
-    terminal = result.collided | (result.terminated[:, None] if config.success_ends_transitions else False)
+    terminal = result.collided | (result.terminated[:, None] if data.success_ends_transitions else False)
     stops = np.broadcast_to(ended, terminal.shape).ravel()[rows]
     terminal = terminal.ravel()[rows]
-    terms = taught_terms(result, rows, config)
-    if config.potential_shaping:
-        rewards, next_potential = shaped_rewards(terms, terminal, potential[rows], config.gamma, config.potential_shaping)
-        potential[rows] = np.where(terminal | stops, 0.0, next_potential)
-    else:
-        rewards = terms.sum(-1)
-    if config.collision_value:
-        rewards = rewards + np.where(result.collided.ravel()[rows], config.gamma * config.collision_value, 0.0)
-    return config.reward_scale * rewards, terminal, stops
+    terms = result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows]
+    rewards, next_potential = taught_reward(
+        terms, result.collided.ravel()[rows], terminal, potential[rows], gamma,
+        data.reward_scale, data.potential_shaping, data.collision_value,
+    )
+    potential[rows] = np.where(terminal | stops, 0.0, next_potential)
+    return rewards, terminal, stops
 
 
 class WorldGroup:
     """B worlds of one scenario under training: their rollout, the transition store of their
     pursuer rows, and the sums of the episodes under way."""
 
-    def __init__(self, scenario: Scenario, buffer: ReplayBuffer, config: Config, rng: np.random.Generator) -> None:
+    def __init__(
+        self, scenario: Scenario, num_envs: int, buffer: ReplayBuffer, data: DataConfig, gamma: float,
+        rng: np.random.Generator,
+    ) -> None:
         self.scenario = scenario
-        self.rollout = Rollout(World(scenario, config.num_envs, seed=int(rng.integers(2**31))))
-        self.transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
-        self.returns = np.zeros(config.num_envs)
+        self.rollout = Rollout(World(scenario, num_envs, seed=int(rng.integers(2**31))))
+        self.transitions = TransitionStore(buffer, data, gamma, num_envs * scenario.pursuers)
+        self.returns = np.zeros(num_envs)
         """[B] per-pursuer return of each world's episode so far (summed rewards / N)."""
-        self.terms = np.zeros((config.num_envs, len(REWARD_TERMS)))
+        self.terms = np.zeros((num_envs, len(REWARD_TERMS)))
         """[B, terms] the same split by reward term."""
-        self.team = np.zeros(config.num_envs)
+        self.team = np.zeros(num_envs)
         """[B] the team-wide share of the cooperation term in it (StepResult.team_cooperation)."""
-
-
-def shaped_rewards(
-    terms: np.ndarray, terminal: np.ndarray, previous_potential: np.ndarray, gamma: float, scale: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Config.potential_shaping of one step of R pursuers: the step's reward with its income
-    (guidance + max(cooperation, 0)) replaced by gamma * Phi(s') - Phi(s).
-
-    terms [R, len(REWARD_TERMS)] as the world paid them; terminal [R] bool (Phi(s') = 0);
-    previous_potential [R]: Phi(s), the potential the row's last step ended in (0 at an
-    episode's start). Returns the rewards [R] and Phi(s') = scale * income [R].
-    """
-    income = terms[:, _GUIDANCE] + np.maximum(terms[:, _COOPERATION], 0.0)
-    potential = scale * income
-    rewards = terms.sum(-1) - income + gamma * np.where(terminal, 0.0, potential) - previous_potential
-    return rewards, potential
 
 
 def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
@@ -298,14 +240,14 @@ def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator
 
 
 # ---------------------------------------------------------------- learning
-def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Config, trim: bool = True) -> torch.Tensor:
+def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, learner: LearnerConfig, trim: bool = True) -> torch.Tensor:
     """Quantile Huber loss (IQN heads) or Huber TD loss (`dqn`) of a sampled batch, a scalar.
 
     The online network runs as it is (train mode: dropout on); the target network,
     in eval mode, gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its own
-    argmax of the mean, or with `config.double_dqn` the online network's argmax.
+    argmax of the mean, or with `learner.double_dqn` the online network's argmax.
     `trim` cuts the slots empty in every row of the batch first (`trim_padding`: the same
-    loss to float round-off, in less time); `config.bf16` runs the networks under bfloat16
+    loss to float round-off, in less time); `learner.bf16` runs the networks under bfloat16
     autocast, their heads' output layers and the loss in float32.
     """
     device = network_device(model)
@@ -317,60 +259,52 @@ def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, config: Confi
     rewards, dones = torch.from_numpy(batch.rewards).to(device), torch.from_numpy(batch.dones).to(device)
     discounts = torch.from_numpy(batch.discounts).to(device)
     rows = len(actions)
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=config.bf16):
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=learner.bf16):
         if model.distributional:
-            taus = torch.rand(rows, config.num_quantiles, device=device)
+            taus = torch.rand(rows, learner.num_quantiles, device=device)
             quantiles = model(*states, taus).quantiles  # [R, N, A]
-            index = actions[:, None, None].expand(-1, config.num_quantiles, 1)
+            index = actions[:, None, None].expand(-1, learner.num_quantiles, 1)
             taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
             with torch.no_grad():
-                next_taus = torch.rand(rows, config.num_target_quantiles, device=device)
+                next_taus = torch.rand(rows, learner.num_target_quantiles, device=device)
                 next_quantiles = target(*next_states, next_taus).quantiles
-                best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if config.double_dqn else None
+                best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if learner.double_dqn else None
                 targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
-            return quantile_huber_loss(taken, taus, targets, config.kappa)
+            return quantile_huber_loss(taken, taus, targets)
         q_values = model(*states).quantiles[:, 0]  # [R, A]
         taken = q_values.gather(1, actions[:, None]).squeeze(1)
         with torch.no_grad():
-            best = model(*next_states).quantiles[:, 0].argmax(dim=1) if config.double_dqn else None
+            best = model(*next_states).quantiles[:, 0].argmax(dim=1) if learner.double_dqn else None
             targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], discounts, best)
-        return huber(taken - targets, config.kappa).mean()
+        return huber(taken - targets).mean()
 
 
-def acting_network(model: QNetwork, config: Config) -> QNetwork:
-    """The network that acts in training: `model` itself, or with Config.actor_update_frequency
-    a copy of it (eval mode, no gradients) that the loop refreshes every so many steps."""
-    if not config.actor_update_frequency:
+def acting_network(model: QNetwork, actor_update_frequency: int) -> QNetwork:
+    """The network that acts in training: `model` itself, or with `actor_update_frequency`
+    (LearnerConfig) a copy of it (eval mode, no gradients) that the loop refreshes every so many steps."""
+    if not actor_update_frequency:
         return model
     return copy.deepcopy(model).eval().requires_grad_(False)  # draws no random numbers
 
 
-def learning_rate_at(config: Config, env_step: int) -> float:
+def learning_rate_at(learner: LearnerConfig, total_steps: int, env_step: int) -> float:
     """Adam's step size at `env_step`: `learning_rate`, or with `final_learning_rate` its linear
     fall from `decay_start` to `total_steps`."""
-    if not config.final_learning_rate:
-        return config.learning_rate
+    if not learner.final_learning_rate:
+        return learner.learning_rate
     return linear_schedule(
-        config.learning_rate, config.final_learning_rate,
-        config.total_steps - config.decay_start, env_step - config.decay_start,
+        learner.learning_rate, learner.final_learning_rate,
+        total_steps - learner.decay_start, env_step - learner.decay_start,
     )
 
 
-def soft_update(target: QNetwork, model: QNetwork, tau: float) -> None:
-    """Polyak step of the target network: every weight becomes tau * online + (1 - tau) * target."""
-    with torch.no_grad():
-        for target_weight, online_weight in zip(target.state_dict().values(), model.state_dict().values()):
-            if target_weight.is_floating_point():
-                target_weight.lerp_(online_weight, tau)
-
-
-def build_learner(config: Config) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
+def build_learner(network: NetworkConfig, learner: LearnerConfig) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
     """A fresh online network, its frozen eval-mode target copy and Adam on the online weights."""
-    model = network_from_config(config).to(config.device)
-    target = network_from_config(config).to(config.device)
+    model = network_from_config(network).to(learner.device)
+    target = network_from_config(network).to(learner.device)
     target.load_state_dict(model.state_dict())
     target.eval().requires_grad_(False)
-    return model, target, torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    return model, target, torch.optim.Adam(model.parameters(), lr=learner.learning_rate)
 
 
 def learn(
@@ -378,78 +312,53 @@ def learn(
     target: QNetwork,
     optimizer: torch.optim.Optimizer,
     batch: ReplayBatch,
-    config: Config,
+    learner: LearnerConfig,
     trim: bool = True,
 ) -> float:
     """One Adam step on `td_loss` (its padding trimmed unless `trim` is false) with the gradient
     norm clipped; returns the loss."""
     model.train()
-    loss = td_loss(model, target, batch, config, trim)
+    loss = td_loss(model, target, batch, learner, trim)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
-    torch.nn.utils.clip_grad_norm_(model.parameters(), config.max_grad_norm)
+    torch.nn.utils.clip_grad_norm_(model.parameters(), learner.max_grad_norm)
     optimizer.step()
     return loss.item()
 
 
 # ---------------------------------------------------------------- evaluation
-def greedy_evaluation(model: QNetwork, scenario: Scenario, config: Config, episodes: int | None = None) -> dict[str, Any]:
-    """Greedy episodes of `scenario` on fixed seeds, run as one batch.
-
-    `episodes` (default `config.eval_episodes`) worlds seeded with `config.eval_seed`, truncated after
-    `config.eval_max_steps` steps. Returns the scenario name, episodes, the fields of
-    terl_rt.sim.metrics.Summary (success rate, travel time, collision ratio, steps) and
-    the mean per-pursuer return.
-    """
-    scenario = scenario.replace(max_steps=config.eval_max_steps)
-    rollout = Rollout(World(scenario, num_envs=episodes or config.eval_episodes, seed=config.eval_seed))
-    num_envs = rollout.world.num_envs
-    finished = np.zeros(num_envs, bool)
-    returns = np.zeros(num_envs)
-    outcomes = [None] * num_envs
-    while not finished.all():
-        # An environment whose first episode ended is restarted by the rollout and ignored.
-        turn = rollout.turn()
-        deciding = ~finished[turn.rows // scenario.pursuers]
-        chosen = np.zeros(len(turn.rows), np.int64)
-        chosen[deciding] = greedy_actions(model, turn.observation.rows(turn.rows[deciding]).as_inputs())
-        step = rollout.step(chosen)
-        returns += np.where(finished, 0.0, step.result.reward.sum(axis=1) / scenario.pursuers)
-        for env, outcome in step.outcomes.items():
-            if not finished[env]:
-                outcomes[env], finished[env] = outcome, True
-    return {
-        "scenario": scenario.name,
-        "episodes": len(outcomes),
-        **asdict(summarize(outcomes)),
-        "mean_return": float(returns.mean()),
-    }
+SNAPSHOT_FIELDS_KEPT = ("name", "episodes", "seed", "success_rate", "travel_time_s_mean", "collision_ratio_mean", "steps_mean")
+"""What a snapshot record keeps of each terl_rt.evaluation result (ScenarioResult.to_dict)."""
 
 
-def snapshot_score(evaluations: list[dict[str, Any]], config: Config) -> float:
+def greedy_evaluation(model: QNetwork, scenario: Scenario, run: RunConfig) -> dict[str, Any]:
+    """`run.snapshot_episodes` greedy episodes of `scenario` through terl_rt.evaluation (the
+    network behind a TorchPolicy), episode k with seed `run.eval_seed` + k as `terl-rt eval
+    --seed` runs it, truncated after `run.eval_max_steps` steps. Returns the scenario name,
+    episodes, first seed, success rate, travel time (s), collision ratio and steps."""
+    result = evaluate_policy(TorchPolicy(model), scenario, run.snapshot_episodes, run.eval_seed, run.eval_max_steps)
+    row = result.to_dict()
+    return {("scenario" if key == "name" else key): row[key] for key in SNAPSHOT_FIELDS_KEPT}
+
+
+def snapshot_score(evaluations: list[dict[str, Any]], run: RunConfig) -> float:
     """How good a snapshot is, higher is better: the mean over its evaluations of
     success rate - collision ratio - travel time / the evaluation's time limit.
 
     Success dominates (an extra encircled episode in 8 is worth 0.125); among equally
     successful snapshots, fewer collisions and shorter episodes win.
     """
-    limit = config.eval_max_steps * 0.5  # s: the decision step is 0.5 s
+    limit = run.eval_max_steps * 0.5  # s: the decision step is 0.5 s
     return float(np.mean([
         e["success_rate"] - e["collision_ratio_mean"] - e["travel_time_s_mean"] / limit for e in evaluations
     ]))
 
 
-def take_snapshot(
-    model: QNetwork, scenario: Scenario, config: Config, best: float | None
-) -> tuple[dict[str, Any], bool]:
-    """Evaluate the online network on the current stage and `config.snapshot_preset`;
+def take_snapshot(model: QNetwork, scenario: Scenario, run: RunConfig, best: float | None) -> tuple[dict[str, Any], bool]:
+    """Evaluate the online network on the current stage `scenario` and `run.snapshot_preset`;
     returns the "snapshot" record (without env_step) and whether it beats `best`."""
-    evaluations = [
-        greedy_evaluation(model, scenario, config, config.snapshot_episodes),
-        greedy_evaluation(model, Scenario.preset(config.snapshot_preset).replace(reward=config.reward), config,
-                 config.snapshot_episodes),
-    ]
-    score = snapshot_score(evaluations, config)
+    evaluations = [greedy_evaluation(model, scenario, run), greedy_evaluation(model, Scenario.preset(run.snapshot_preset), run)]
+    score = snapshot_score(evaluations, run)
     better = best is None or score > best
     return {"kind": "snapshot", "score": score, "best": better, "evaluations": evaluations}, better
 
@@ -519,89 +428,111 @@ def recent_means(recent: deque) -> dict[str, float | dict[str, float] | None]:
     }
 
 
+# ---------------------------------------------------------------- resume
+SNAPSHOT_EVALUATOR = "terl_rt.evaluation"
+"""What measured a run's snapshots (Counters.snapshot_evaluator): scores of checkpoints written
+before snapshots ran through terl_rt.evaluation (None there) do not compare with today's."""
+
+
+def restore_buffer(
+    resume: Path, saved_config: Config, config: Config, counters: Counters, buffer: ReplayBuffer, load: bool = True
+) -> tuple[int, int, str]:
+    """Load a resumed run's replay buffer when it was saved, fits and `load` is true, else plan its refill.
+
+    Returns the environment step updates may start at, the transitions the buffer must hold
+    again before they do (0: none to wait for) and the note that says which. Without a saved
+    buffer it is refilled to the transitions it held (`Counters.replay_transitions`; its
+    capacity for older checkpoints), and for at least `learning_starts` environment steps:
+    updating on a buffer a tenth as full as before made the policy collapse within 20 k steps.
+    """
+    learning_starts = config.data.learning_starts
+    saved = resume / REPLAY_FILE
+    unused = "no saved replay buffer" if load else "its saved replay buffer is not used (a refill)"
+    return_changes = changed_fields(saved_config, config, RETURN_FIELDS)
+    if saved.is_file() and return_changes:  # a fine-tune that stores other returns
+        unused = f"its saved replay buffer was stored under other {', '.join(return_changes)}"
+    elif saved.is_file() and load:
+        try:
+            buffer.load(saved)
+        except ValueError as error:  # a fine-tune on a scenario with other evader slots
+            unused = f"its saved replay buffer does not fit ({error})"
+    owed = min(buffer.capacity, counters.replay_transitions or 0)  # what it held before any refill cut off
+    if len(buffer) and len(buffer) >= owed:
+        return learning_starts, 0, (
+            f"resumed from {resume} at environment step {counters.env_step} with its replay buffer "
+            f"({len(buffer):,} transitions)"
+        )
+    if len(buffer):  # a saved buffer of a refill cut off: the refill goes on
+        unused = f"its saved replay buffer holds {len(buffer):,} transitions, a refill cut off"
+    refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
+    if not counters.replay_transitions:
+        held = f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)"
+    elif counters.replay_transitions > refill_to:
+        held = f"its capacity, {refill_to:,} transitions (the checkpoint held {counters.replay_transitions:,})"
+    else:
+        held = f"the {refill_to:,} transitions it held"
+    return counters.env_step + learning_starts, refill_to, (
+        f"resumed from {resume} at environment step {counters.env_step}; {unused}, it is refilled to {held}, "
+        f"and for at least {learning_starts} environment steps, before updates resume"
+    )
+
+
 # ---------------------------------------------------------------- the loop
 def train(
     config: Config,
     out_dir: str | Path,
     resume: str | Path | None = None,
     show_progress: bool = True,
+    load_replay: bool = True,
 ) -> Counters:
-    """Train `config.model` for `config.total_steps` environment steps; return the final counters.
+    """Train the config's network for its schedule's `total_steps` environment steps; return the
+    final counters.
 
     Writes metrics.jsonl, the checkpoint files (see training.checkpoint), the replay
-    buffer (replay.npz, `config.save_replay`) and the best snapshot (best/,
-    `config.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
+    buffer (replay.npz, `DataConfig.save_replay`) and the best snapshot (best/,
+    `RunConfig.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
     counters, RNG states and, when it was saved there, the replay buffer come from that
-    checkpoint; without a saved buffer, it is refilled to the transitions it held then
-    (`Counters.replay_transitions`; its capacity for older checkpoints), and for at least
-    `learning_starts` environment steps, before updates resume (logged): updating on a
-    buffer a tenth as full as before made the policy collapse within 20 k steps.
-    The caller sets torch's thread count.
+    checkpoint (`restore_buffer`; `load_replay` false refills it instead). The caller sets
+    torch's thread count.
     """
+    network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     log_path = out_dir / METRICS_FILE
 
     # --- seeding
     rng = np.random.default_rng()
-    seed_generators(config.seed, rng)
+    seed_generators(run.seed, rng)
 
     # --- networks, optimiser, counters, replay buffer
-    model, target, optimizer = build_learner(config)
-    counters = Counters()
+    model, target, optimizer = build_learner(network, learner)
+    counters = Counters(snapshot_evaluator=SNAPSHOT_EVALUATOR)
     if resume is not None:
+        resume = Path(resume)
         counters = load_checkpoint(resume, model, target, optimizer, rng)
-        # A fine-tune (a new config on the checkpoint's weights) that evaluates snapshots on other
-        # scenarios starts its own best: scores of different evaluations do not compare.
         saved_config = read_config(resume)
+    actor = acting_network(model, learner.actor_update_frequency)
+    progress = Progress(show_progress, counters.env_step)
+    scenarios = training_scenarios(schedule, data.reward, counters.env_step)
+    buffer = ReplayBuffer(data.buffer_size, buffer_evader_slots(scenarios))
+    learning_starts, refill_to = data.learning_starts, 0
+    if resume is not None:
+        learning_starts, refill_to, note = restore_buffer(resume, saved_config, config, counters, buffer, load_replay)
+        # A fine-tune that evaluates snapshots on other scenarios, or a run whose snapshots were
+        # measured by another evaluator, starts its own best: such scores do not compare.
         evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
+        if counters.snapshot_evaluator != SNAPSHOT_EVALUATOR:
+            evaluation_changes.append("the evaluator")
+            counters.snapshot_evaluator = SNAPSHOT_EVALUATOR
         if evaluation_changes:
             counters.best_score, counters.best_step = None, None
-    actor = acting_network(model, config)
-    progress = Progress(show_progress, counters.env_step)
-    scenarios = training_scenarios(config, counters.env_step)
-    buffer = ReplayBuffer(config.buffer_size, buffer_evader_slots(scenarios))
-    learning_starts = config.learning_starts
-    refill_to = 0
-    """transitions the buffer must hold again before updates resume (0: none to wait for)."""
-    if resume is not None:
-        saved = Path(resume) / REPLAY_FILE
-        unused = "no saved replay buffer"
-        return_changes = changed_fields(saved_config, config, RETURN_FIELDS)
-        if saved.is_file() and return_changes:  # a fine-tune that stores other returns
-            unused = f"its saved replay buffer was stored under other {', '.join(return_changes)}"
-        elif saved.is_file():
-            try:
-                buffer.load(saved)
-            except ValueError as error:  # a fine-tune on a scenario with other evader slots
-                unused = f"its saved replay buffer does not fit ({error})"
-        if len(buffer):
-            note = f"resumed from {resume} at environment step {counters.env_step} with its replay buffer ({len(buffer):,} transitions)"
-        else:
-            learning_starts = counters.env_step + config.learning_starts
-            refill_to = min(buffer.capacity, counters.replay_transitions or buffer.capacity)
-            if not counters.replay_transitions:
-                held = f"its capacity, {refill_to:,} transitions (the checkpoint does not say what it held)"
-            elif counters.replay_transitions > refill_to:
-                held = f"its capacity, {refill_to:,} transitions (the checkpoint held {counters.replay_transitions:,})"
-            else:
-                held = f"the {refill_to:,} transitions it held"
-            note = (
-                f"resumed from {resume} at environment step {counters.env_step}; {unused}, "
-                f"it is refilled to {held}, and for at least "
-                f"{config.learning_starts} environment steps, before updates resume"
-            )
-        if config.resume_reseeds:  # before the worlds are drawn, the first use of the generators
-            seed_generators(config.seed, rng)
-            note += f"; its random generators are seeded anew from seed {config.seed} (resume_reseeds)"
-        if evaluation_changes:
             note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
         write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
         progress.note(note)
 
     # --- environments: a group of B worlds per scenario, stepped in turn
-    num_envs = config.num_envs
-    groups = [WorldGroup(scenario, buffer, config, rng) for scenario in scenarios]
+    num_envs = schedule.num_envs
+    groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in scenarios]
     stage_name = stage_label(scenarios)
     if stage_name not in counters.stages:
         counters.stages.append(stage_name)
@@ -611,11 +542,11 @@ def train(
     session_start, session_step = time.perf_counter(), counters.env_step
     wall_before = counters.wall_seconds
 
-    while counters.env_step < config.total_steps:
+    while counters.env_step < schedule.total_steps:
         # --- curriculum: a new stage gets new worlds; episodes under way are dropped
-        stage = training_scenarios(config, counters.env_step)
+        stage = training_scenarios(schedule, data.reward, counters.env_step)
         if stage_label(stage) != stage_name:
-            groups = [WorldGroup(scenario, buffer, config, rng) for scenario in stage]
+            groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in stage]
             stage_name = stage_label(stage)
             if stage_name not in counters.stages:
                 counters.stages.append(stage_name)
@@ -625,9 +556,9 @@ def train(
 
         # --- collect: one batched forward for every active pursuer, epsilon-greedy each
         epsilon = linear_schedule(
-            config.start_e, config.end_e, config.exploration_fraction * config.total_steps, counters.env_step
+            schedule.start_e, schedule.end_e, schedule.exploration_fraction * schedule.total_steps, counters.env_step
         )
-        learning_rate = learning_rate_at(config, counters.env_step)
+        learning_rate = learning_rate_at(learner, schedule.total_steps, counters.env_step)
         for param_group in optimizer.param_groups:  # the config rules, not the rate a resumed optimizer saved
             param_group["lr"] = learning_rate
         turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
@@ -651,46 +582,38 @@ def train(
         previous_step = counters.env_step
         counters.env_step += num_envs
 
-        # --- learn: the updates due in this batch step, each followed by the soft target
-        # update (target_tau), or the hard target copy after them
+        # --- learn: the updates due in this batch step, then the target copy when due
         if refill_to and len(buffer) >= refill_to:
             learning_starts, refill_to = max(learning_starts, counters.env_step), 0
-        if not refill_to and counters.env_step >= learning_starts and len(buffer) >= config.batch_size:
+        if not refill_to and counters.env_step >= learning_starts and len(buffer) >= learner.batch_size:
             # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
-            due = crossings(max(previous_step, learning_starts), counters.env_step, config.train_frequency)
+            due = crossings(max(previous_step, learning_starts), counters.env_step, learner.train_frequency)
             for _ in range(due):
-                batch = buffer.sample(config.batch_size, rng)
-                last_loss = learn(model, target, optimizer, batch, config)
+                batch = buffer.sample(learner.batch_size, rng)
+                last_loss = learn(model, target, optimizer, batch, learner)
                 losses.append(last_loss)
                 counters.updates += 1
-                if config.target_tau:
-                    soft_update(target, model, config.target_tau)
-            if not config.target_tau and crossings(previous_step, counters.env_step, config.target_network_frequency):
+            if crossings(previous_step, counters.env_step, learner.target_network_frequency):
                 target.load_state_dict(model.state_dict())
-        if actor is not model and crossings(previous_step, counters.env_step, config.actor_update_frequency):
+        if actor is not model and crossings(previous_step, counters.env_step, learner.actor_update_frequency):
             actor.load_state_dict(model.state_dict())
 
         # --- evaluate, snapshot and log
-        finished = counters.env_step >= config.total_steps
+        finished = counters.env_step >= schedule.total_steps
         counters.wall_seconds = wall_before + time.perf_counter() - session_start
-        evaluation = None
-        if config.eval_frequency and (
-            crossings(previous_step, counters.env_step, config.eval_frequency) or finished
+        if run.snapshot_frequency and (
+            crossings(previous_step, counters.env_step, run.snapshot_frequency) or finished
         ):
-            evaluation = greedy_evaluation(model, groups[0].scenario, config)
-        if config.snapshot_frequency and (
-            crossings(previous_step, counters.env_step, config.snapshot_frequency) or finished
-        ):
-            record, better = take_snapshot(model, groups[0].scenario, config, counters.best_score)
+            record, better = take_snapshot(model, groups[0].scenario, run, counters.best_score)
             write_record(log_path, {**record, "env_step": counters.env_step})
-            if config.keep_snapshots:
+            if run.keep_snapshots:
                 save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
             if better:
                 counters.best_score, counters.best_step = record["score"], counters.env_step
                 counters.replay_transitions = len(buffer)
                 save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
                 progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
-        if evaluation or finished or crossings(previous_step, counters.env_step, config.log_frequency):
+        if finished or crossings(previous_step, counters.env_step, run.log_frequency):
             session_seconds = time.perf_counter() - session_start
             record = {
                 "kind": "train",
@@ -704,31 +627,24 @@ def train(
                 **recent_means(recent),
                 "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),
                 "wall_seconds": counters.wall_seconds,
-                "eval": evaluation,
             }
             write_record(log_path, record)
             losses.clear()
-            if evaluation:
-                progress.note(
-                    f"eval at {counters.env_step} on {evaluation['scenario']}: success "
-                    f"{evaluation['success_rate']:.2f}, travel time {evaluation['travel_time_s_mean']:.1f} s, "
-                    f"collisions {evaluation['collision_ratio_mean']:.2f}"
-                )
         if progress.due() or finished:
             means = recent_means(recent)
             success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
             loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
             progress.show(
-                f"step {counters.env_step:,}/{config.total_steps:,} | "
+                f"step {counters.env_step:,}/{schedule.total_steps:,} | "
                 f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
                 f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
                 f"eps {epsilon:.3f} | updates {counters.updates} | {stage_name}"
             )
 
         # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
-        if finished or crossings(previous_step, counters.env_step, config.checkpoint_frequency):
-            counters.replay_transitions = len(buffer)
-            if config.save_replay:
+        if finished or crossings(previous_step, counters.env_step, run.checkpoint_frequency):
+            counters.replay_transitions = max(len(buffer), refill_to)  # a refill cut off still owes what it held
+            if data.save_replay:
                 buffer.save(out_dir / REPLAY_FILE)
             save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
 
@@ -779,48 +695,49 @@ def benchmark(config: Config, seconds: float = 5.0) -> Throughput:
     and counts (total_steps - learning_starts) / train_frequency updates. The caller sets torch's
     thread count.
     """
-    rng = np.random.default_rng(config.seed)
-    torch.manual_seed(config.seed)
-    model, target, optimizer = build_learner(config)
+    network, learner, schedule = config.network, config.learner, config.schedule
+    rng = np.random.default_rng(config.run.seed)
+    torch.manual_seed(config.run.seed)
+    model, target, optimizer = build_learner(network, learner)
 
     # Scenarios of the run with their shares of the steps.
-    if config.curriculum:
-        total = sum(config.curriculum_shares)
-        shares = {name: share / total for name, share in zip(CURRICULUM_STAGES, config.curriculum_shares)}
+    if schedule.curriculum:
+        starts = [start / CURRICULUM_STEPS for start, _ in CURRICULUM_STARTS] + [1.0]
+        shares = {name: end - start for name, start, end in zip(CURRICULUM_STAGES, starts, starts[1:])}
     else:
-        names = (config.scenario, *config.mixed_scenarios)
+        names = (schedule.scenario, *schedule.mixed_scenarios)
         shares = {name: 1.0 / len(names) for name in names}
     slots = buffer_evader_slots([Scenario.preset(name) for name in shares])
 
     rates, modes = {}, {}
     for name in shares:
         # Every scenario's transitions in a buffer of the run's row width, as training stores them.
-        buffer = ReplayBuffer(max(config.batch_size * 64, 10_000), slots)
-        scenario = Scenario.preset(name).replace(reward=config.reward)
-        rollout = Rollout(World(scenario, config.num_envs, seed=config.seed))
-        transitions = TransitionStore(buffer, config, config.num_envs * scenario.pursuers)
+        buffer = ReplayBuffer(max(learner.batch_size * 64, 10_000), slots)
+        scenario = Scenario.preset(name).replace(reward=config.data.reward)
+        rollout = Rollout(World(scenario, schedule.num_envs, seed=config.run.seed))
+        transitions = TransitionStore(buffer, config.data, learner.gamma, schedule.num_envs * scenario.pursuers)
         timed_steps, start = -3, time.perf_counter()  # three untimed warm-up batch steps
         while timed_steps <= 0 or time.perf_counter() - start < seconds:
             if timed_steps == 0:
                 start = time.perf_counter()
             turn = rollout.turn()
             states = turn.observation.rows(turn.rows).as_inputs()
-            step = rollout.step(epsilon_greedy(model, states, config.start_e, rng))
+            step = rollout.step(epsilon_greedy(model, states, schedule.start_e, rng))
             transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
             timed_steps += 1
-        rates[name] = timed_steps * config.num_envs / (time.perf_counter() - start)
-        modes[name] = time_updates(model, target, optimizer, buffer, config, rng, seconds / 3)
+        rates[name] = timed_steps * schedule.num_envs / (time.perf_counter() - start)
+        modes[name] = time_updates(model, target, optimizer, buffer, learner, rng, seconds / 3)
 
     mix = {mode: 1.0 / sum(share / modes[name][mode] for name, share in shares.items()) for mode in UPDATE_MODES}
-    own = mix["bf16 trimmed" if config.bf16 else "fp32 trimmed"]
-    rollout_seconds = sum(share * config.total_steps / rates[name] for name, share in shares.items())
-    update_count = max(config.total_steps - config.learning_starts, 0) / config.train_frequency
+    own = mix["bf16 trimmed" if learner.bf16 else "fp32 trimmed"]
+    rollout_seconds = sum(share * schedule.total_steps / rates[name] for name, share in shares.items())
+    update_count = max(schedule.total_steps - config.data.learning_starts, 0) / learner.train_frequency
     return Throughput(
-        model=config.model,
-        hidden=config.hidden,
-        layers=config.layers,
-        heads=config.heads,
-        num_envs=config.num_envs,
+        model=network.model,
+        hidden=network.hidden,
+        layers=network.layers,
+        heads=network.heads,
+        num_envs=schedule.num_envs,
         threads=torch.get_num_threads(),
         rollout_steps_per_second=rates,
         update_modes=modes,
@@ -835,20 +752,20 @@ def time_updates(
     target: QNetwork,
     optimizer: torch.optim.Optimizer,
     buffer: ReplayBuffer,
-    config: Config,
+    learner: LearnerConfig,
     rng: np.random.Generator,
     seconds: float,
 ) -> dict[str, float]:
     """Updates/s of each UPDATE_MODES entry on batches of `buffer`, the modes taking turns on
     the same batches until each has run for about `seconds` (after one warm-up update each)."""
-    settings = {mode: (mode != "fp32 full", config.replace(bf16=mode.startswith("bf16"))) for mode in UPDATE_MODES}
+    settings = {mode: (mode != "fp32 full", dataclasses.replace(learner, bf16=mode.startswith("bf16"))) for mode in UPDATE_MODES}
     elapsed = dict.fromkeys(UPDATE_MODES, 0.0)
     counts = dict.fromkeys(UPDATE_MODES, -1)  # the first update of each mode is a warm-up
     while min(counts.values()) < 3 or min(elapsed.values()) < seconds:
-        batch = buffer.sample(config.batch_size, rng)
-        for mode, (trim, mode_config) in settings.items():
+        batch = buffer.sample(learner.batch_size, rng)
+        for mode, (trim, mode_learner) in settings.items():
             start = time.perf_counter()
-            learn(model, target, optimizer, batch, mode_config, trim)
+            learn(model, target, optimizer, batch, mode_learner, trim)
             if counts[mode] >= 0:
                 elapsed[mode] += time.perf_counter() - start
             counts[mode] += 1

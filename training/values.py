@@ -2,8 +2,8 @@
 
 Greedy episodes of one scenario: at every step of every active pursuer, the network's
 Q-value of the action it takes against the discounted return that follows, of the rewards
-the learner is taught under the network's own config (`training.train.taught_rewards`:
-shaping, collision value, what ends a transition). A Q-value far above the returns that
+the learner is taught under the network's own config (`training.train.taught_step`:
+shaping, collision value, scale, what ends a transition). A Q-value far above the returns that
 follow, or uncorrelated with them, is a value function that has not caught up with its
 reward (docs/training.md, "The drift": neither the target copies nor the values' level
 explained the drift there; with kappa = 1 the loss passes only the signs of the errors).
@@ -22,7 +22,8 @@ from terl_rt.sim.world import World
 from training.buffer import trim_padding
 from training.config import Config
 from training.networks import QNetwork
-from training.train import as_tensors, explore, taught_rewards
+from training.torch_policy import as_tensors
+from training.train import explore, taught_step
 
 
 MIN_CORRELATION = 0.5
@@ -41,7 +42,7 @@ class ValueCheck:
     epsilon: float
     """probability of a random action per pursuer-step (0: greedy episodes)."""
     q_mean: float
-    """mean Q(s, a) of the actions taken, in the taught return's units (times Config.reward_scale)."""
+    """mean Q(s, a) of the actions taken, in the taught return's units (times DataConfig.reward_scale)."""
     return_mean: float
     """mean discounted return that followed them (episodes cut at the step limit end there)."""
     gap_mean: float
@@ -87,14 +88,14 @@ def value_check(
         step = rollout.step(actions)
         first = ~ended[turn.rows // num_pursuers]  # rows of worlds still in their first episode
         rows = turn.rows[first]
-        rewards, terminal, _ = taught_rewards(step.result, rows, potential, config)
+        rewards, terminal, _ = taught_step(step.result, rows, potential, config.data, config.learner.gamma)
         steps.append((rows, q_values[first, actions[first]], rewards, terminal))
         ended |= step.result.terminated | step.result.truncated
     following = np.zeros(episodes * num_pursuers)
     """[B * N] the discounted return from each row's next step on, built backwards."""
     q_taken, returns = [], []
     for rows, q, rewards, terminal in reversed(steps):
-        following[rows] = rewards + config.gamma * np.where(terminal, 0.0, following[rows])
+        following[rows] = rewards + config.learner.gamma * np.where(terminal, 0.0, following[rows])
         q_taken.append(q)
         returns.append(following[rows].copy())
     q_all, return_all = np.concatenate(q_taken), np.concatenate(returns)

@@ -31,7 +31,10 @@ be reached): one line on stderr and exit status 2 (traceback with --debug)."""
 
 
 class TerlGroup(click.Group):
-    """A click group that turns expected user mistakes into a one-line error, exit 2."""
+    """A click group that turns expected user mistakes (`user_errors`) into a one-line error, exit 2."""
+
+    user_errors: tuple[type[BaseException], ...] = USER_ERRORS
+    """What counts as a user mistake; a group of another package extends it."""
 
     def invoke(self, ctx: click.Context):
         try:
@@ -43,7 +46,7 @@ class TerlGroup(click.Group):
             where = f" (see {err.ctx.command_path} -h)" if err.ctx is not None else ""
             click.echo(f"Error: {one_line(click.ClickException(err.format_message()))}{where}", err=True)
             ctx.exit(2)
-        except USER_ERRORS as err:
+        except self.user_errors as err:
             if ctx.obj and ctx.obj.get("debug"):
                 raise
             click.echo(f"Error: {one_line(err)}", err=True)

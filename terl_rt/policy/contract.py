@@ -21,18 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.observation import (  # the observation layout is the simulator's; the contract names it
+    EGO_FEATURES, EVADER_FEATURES, INPUT_NAMES, OBSTACLE_FEATURES, TEAMMATE_FEATURES,
+)
 
 CONTRACT_VERSION = "1"
 """The contract version this runtime reads."""
-
-EGO_FEATURES = 4
-"""ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""
-TEAMMATE_FEATURES = 7
-"""teammate token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), pursuit_status]."""
-EVADER_FEATURES = 7
-"""evader token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), heading (rad, [0, 2pi))]."""
-OBSTACLE_FEATURES = 5
-"""obstacle token: [px, py (m), r (m), d (m), bearing (rad)]."""
 
 META_CONTRACT = "terl.contract"
 """Metadata key: contract version, "1"."""
@@ -109,9 +103,7 @@ INPUTS = (
     TensorSpec("obstacles", "float32", ("B", "O", OBSTACLE_FEATURES)),
     TensorSpec("mask", "bool", ("B", "1+P+E+O")),
 )
-"""Contract inputs, in the order of `Observation.as_inputs()`."""
-INPUT_NAMES: tuple[str, ...] = tuple(spec.name for spec in INPUTS)
-"""ego, teammates, evaders, obstacles, mask: the inputs in call order."""
+"""Contract inputs, in the order of `Observation.as_inputs()` (INPUT_NAMES)."""
 
 OUTPUTS = (
     TensorSpec("q_values", "float32", ("B", NUM_PURSUER_ACTIONS)),

@@ -2,7 +2,8 @@
 
 Each observation has four token groups plus a mask, in the observer's ego frame:
 ego [4], teammates [P=5, 7], evaders [E, 7], obstacles [O=5, 5], mask [1+P+E+O];
-the names and feature widths are the contract's (terl_rt.policy.contract).
+this module defines that layout (names, feature widths, slots), and the ONNX contract
+(terl_rt.policy.contract) and the PettingZoo spaces (terl_rt.envs) take it from here.
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ from functools import lru_cache
 
 import numpy as np
 
-from terl_rt.policy.contract import EGO_FEATURES, INPUT_NAMES, TEAMMATE_FEATURES
 from terl_rt.sim.dynamics import as_complex
 from terl_rt.sim.geometry import (
     Geometry,
@@ -30,6 +30,16 @@ from terl_rt.sim.params import WorldParams
 from terl_rt.sim.perception import perception_reach
 from terl_rt.sim.state import WorldState
 
+EGO_FEATURES = 4
+"""ego token: [vx, vy (m/s, ego frame), d_nearest (m), pursuit_status (0/1)]."""
+TEAMMATE_FEATURES = 7
+"""teammate token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), pursuit_status]."""
+EVADER_FEATURES = 7
+"""evader token: [px, py (m), vx, vy (m/s), d (m), bearing (rad), heading (rad, [0, 2pi))]."""
+OBSTACLE_FEATURES = 5
+"""obstacle token: [px, py (m), r (m), d (m), bearing (rad)]."""
+INPUT_NAMES: tuple[str, ...] = ("ego", "teammates", "evaders", "obstacles", "mask")
+"""The observation's arrays in `Observation.as_inputs()` order (the ONNX contract's inputs, in call order)."""
 TEAMMATE_SLOTS = 5
 """P: teammate slots, nearest perceived active pursuers first."""
 OBSTACLE_SLOTS = 5

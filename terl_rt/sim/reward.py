@@ -172,3 +172,42 @@ def _for_recipients(terms: np.ndarray, recipients: np.ndarray) -> np.ndarray:
     terms *= recipients[..., None]
     terms += 0.0  # -0.0 (a penalty times false) becomes 0.0
     return terms
+
+
+def taught_reward(
+    terms: np.ndarray,
+    collided: np.ndarray,
+    terminal: np.ndarray,
+    previous_potential: np.ndarray,
+    gamma: float,
+    scale: float = 1.0,
+    shaping: float = 0.0,
+    collision_value: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reward a learner is taught for one step of R pursuers, from the terms the world paid.
+
+    terms [R, len(REWARD_TERMS)] as paid; collided [R] bool (the pursuer collided in the step);
+    terminal [R] bool (its transition ends: no bootstrap, Phi(s') = 0); previous_potential [R]:
+    Phi(s) of the state its last step ended in (0 at an episode's start); gamma the discount per
+    0.5 s decision step.
+
+    - `shaping` k > 0 pays the income, guidance + max(cooperation, 0), as a potential difference
+      gamma * Phi(s') - Phi(s) with Phi = k * income (Ng, Harada and Russell 1999): holding a ring
+      open earns nothing a step, the approach still pays, the best policy of the other terms is
+      unchanged. k = 0 teaches the terms as paid.
+    - `collision_value` V_c <= 0: a collided pursuer's transition ends on V_c, so its reward gains
+      gamma * V_c (0: ends on nothing, the published setting).
+    - `scale` c > 0 multiplies everything, so returns are in units of 1 / c.
+
+    Returns the rewards [R] and Phi(s') [R] (k * income; 0 without shaping); the caller keeps
+    Phi(s') as the next step's previous_potential (0 where the episode stops).
+    """
+    guidance, cooperation = terms[:, REWARD_TERMS.index("guidance")], terms[:, REWARD_TERMS.index("cooperation")]
+    rewards = terms.sum(-1)
+    potential = np.zeros(len(terms))
+    if shaping:
+        income = guidance + np.maximum(cooperation, 0.0)
+        potential = shaping * income
+        rewards = rewards - income + gamma * np.where(terminal, 0.0, potential) - previous_potential
+    rewards = rewards + np.where(collided, gamma * collision_value, 0.0)
+    return scale * rewards, potential

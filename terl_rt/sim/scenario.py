@@ -481,6 +481,8 @@ CURRICULUM_STARTS: tuple[tuple[int, str], ...] = (
     (6_000_000, "curriculum-5"),
 )
 """(first environment step, preset name) of each curriculum stage; 7 M steps in all."""
+CURRICULUM_STEPS = 7_000_000
+"""Environment steps of the published curriculum."""
 
 PRESETS: dict[str, Scenario] = {
     s.name: s
@@ -507,10 +509,12 @@ PRESETS: dict[str, Scenario] = {
 }
 
 
-def curriculum_stage(env_step: int) -> Scenario:
-    """The curriculum scenario in force at environment step `env_step` (>= 0)."""
+def curriculum_stage(env_step: int, curriculum_steps: int = CURRICULUM_STEPS) -> Scenario:
+    """The curriculum scenario in force at environment step `env_step` (>= 0) of a curriculum
+    of `curriculum_steps` steps: each stage starts at its published fraction of them (2/7, 4/7,
+    5/7, 6/7), rounded to the nearest step; after them the last stage goes on."""
     name = CURRICULUM_STARTS[0][1]
     for start, stage in CURRICULUM_STARTS:
-        if env_step >= start:
+        if env_step >= int(round(start / CURRICULUM_STEPS * curriculum_steps)):
             name = stage
     return PRESETS[name]

@@ -1,6 +1,6 @@
-"""The learner's options, each on a tiny case whose answer is known: n-step returns,
+"""The learner's options, each on a tiny case whose answer is known: the shaped store,
 double-DQN targets, a subsampled store, a restored replay buffer, the best-snapshot choice,
-soft target updates, a falling step size and averaged snapshots."""
+fine-tunes, several team sizes, the collision value, a falling step size and the value check."""
 
 from __future__ import annotations
 
@@ -10,21 +10,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from safetensors.torch import load_file
 
-from training.buffer import NStepWindow, ReplayBuffer, pad_evader_slots
+from training.buffer import ReplayBuffer, pad_evader_slots
 from training.checkpoint import network_from_config, seed_generators
-from training.config import Config, ConfigError
+from training.config import SECTION_OF, Config, ConfigError
 from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
 from training.checkpoint import read_counters
-from terl_rt.sim.reward import REWARD_TERMS
+from terl_rt.sim.reward import taught_reward
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.train import (
-    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, learning_rate_at, shaped_rewards,
-    snapshot_score, soft_update, subsample_per_group, taught_rewards, train,
+    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, learning_rate_at, snapshot_score,
+    subsample_per_group, train,
 )
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
@@ -38,107 +37,7 @@ def marked(values) -> dict[str, np.ndarray]:
     return rows
 
 
-def push(window, step, rewards, dones=None, stops=None, rows=(0,)):
-    """One step of `rows`, observations marked with the step number (the next ones with step + 1)."""
-    rows = np.array(rows)
-    dones = np.zeros(len(rows), bool) if dones is None else np.array(dones)
-    stops = np.zeros(len(rows), bool) if stops is None else np.array(stops)
-    sources, done = window.push(rows, marked([step] * len(rows)), np.full(len(rows), step % 9),
-                                np.array(rewards, float), marked([step + 1] * len(rows)), dones, stops)
-    return sources, done
-
-
-# ---------------------------------------------------------------- n-step returns
-def test_three_step_return_is_emitted_once_the_window_is_full():
-    # gamma 0.5, rewards 1, 2, 4: R = 1 + 0.5 * 2 + 0.25 * 4 = 3, bootstrapped from s_3 with 0.125
-    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
-    assert len(push(window, 0, [1.0])[1].actions) == 0
-    assert len(push(window, 1, [2.0])[1].actions) == 0
-    rows, out = push(window, 2, [4.0])
-    assert out.rewards.tolist() == [3.0] and out.discounts.tolist() == [0.125] and out.dones.tolist() == [False]
-    assert out.observations["ego"][:, 0].tolist() == [0.0] and out.next_observations["ego"][:, 0].tolist() == [3.0]
-    # the next step completes the window that started at step 1: 2 + 0.5 * 4 + 0.25 * 8 = 6
-    rows, out = push(window, 3, [8.0])
-    assert out.rewards.tolist() == [6.0] and out.observations["ego"][:, 0].tolist() == [1.0]
-
-
-def test_a_terminal_step_flushes_every_pending_return_without_bootstrap():
-    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
-    push(window, 0, [1.0])
-    rows, out = push(window, 1, [-80.0], dones=[True])
-    # pending: from step 0, 1 + 0.5 * -80 = -39 (k = 2); from step 1, -80 (k = 1); oldest first
-    assert out.rewards.tolist() == [-39.0, -80.0]
-    assert out.discounts.tolist() == [0.25, 0.5] and out.dones.tolist() == [True, True]
-    assert out.observations["ego"][:, 0].tolist() == [0.0, 1.0]
-    assert len(push(window, 5, [1.0])[1].actions) == 0  # the row starts afresh
-
-
-def test_truncation_flushes_pending_returns_bootstrapped_from_the_last_state():
-    window = NStepWindow(3, 0.5, num_rows=1, shapes=SHAPES)
-    push(window, 0, [1.0])
-    rows, out = push(window, 1, [2.0], stops=[True])
-    assert out.rewards.tolist() == [2.0, 2.0] and out.discounts.tolist() == [0.25, 0.5]
-    assert out.dones.tolist() == [False, False] and out.next_observations["ego"][:, 0].tolist() == [2.0, 2.0]
-
-
-def test_one_step_window_passes_every_step_through():
-    window = NStepWindow(1, 0.99, num_rows=3, shapes=SHAPES)
-    rows, out = push(window, 0, [1.0, 2.0], rows=(0, 2))
-    assert rows.tolist() == [0, 2] and out.rewards.tolist() == [1.0, 2.0]
-    assert out.discounts.tolist() == pytest.approx([0.99, 0.99])
-
-
-def test_rows_that_do_not_act_keep_their_window():
-    window = NStepWindow(2, 0.5, num_rows=2, shapes=SHAPES)
-    push(window, 0, [1.0, 10.0], rows=(0, 1))
-    rows, out = push(window, 1, [2.0], rows=(0,))  # row 1 did not act this step
-    assert rows.tolist() == [0] and out.rewards.tolist() == [2.0]
-
-
 # ---------------------------------------------------------------- potential shaping
-def pursuer_terms(time=-1.0, guidance=0.0, cooperation=0.0, completion=0.0) -> np.ndarray:
-    """One pursuer's reward terms [1, len(REWARD_TERMS)]."""
-    terms = np.zeros((1, len(REWARD_TERMS)))
-    for name, value in (("time", time), ("guidance", guidance), ("cooperation", cooperation), ("completion", completion)):
-        terms[0, REWARD_TERMS.index(name)] = value
-    return terms
-
-
-def test_holding_an_open_ring_earns_only_the_potential_rent():
-    # guidance 5 + cooperation 5 every step: unshaped +9 a step; shaped (k = 1, gamma 0.9)
-    # the first step pays gamma * 10 - 0 - 1 = 8, later ones 0.9 * 10 - 10 - 1 = -2.
-    potential, rewards = np.zeros(1), []
-    for _ in range(3):
-        reward, potential = shaped_rewards(pursuer_terms(guidance=5.0, cooperation=5.0), np.array([False]), potential, 0.9, 1.0)
-        rewards.append(float(reward[0]))
-    assert rewards == pytest.approx([8.0, -2.0, -2.0])
-
-
-def test_shaping_keeps_the_crowding_penalty_and_zeroes_the_terminal_potential():
-    # crowding (cooperation -10) stays a per-step cost; a terminal step gets no gamma * Phi(s')
-    # and gives back Phi(s) = 2 * 4 = 8; completion is paid as it is.
-    reward, potential = shaped_rewards(
-        pursuer_terms(guidance=4.0, cooperation=-10.0, completion=150.0), np.array([True]), np.array([8.0]), 0.99, 2.0
-    )
-    assert reward.tolist() == pytest.approx([-1.0 - 10.0 + 150.0 - 8.0]) and potential.tolist() == [8.0]
-
-
-def test_shaped_discounted_return_differs_from_the_unshaped_by_the_start_potential_only():
-    # Ng et al.: sum_t gamma^t F_t telescopes to gamma^T Phi(s_T) - Phi(s_0) = 0 for an episode that
-    # ends terminal with Phi(s_0) = 0: the shaped return is the unshaped return of the other terms.
-    rng = np.random.default_rng(3)
-    gamma, steps = 0.97, 12
-    terms = [pursuer_terms(guidance=g, cooperation=c, completion=120.0 * (t == steps - 1))
-             for t, (g, c) in enumerate(zip(rng.uniform(0, 5, steps), rng.uniform(-10, 5, steps)))]
-    potential, shaped, base = np.zeros(1), 0.0, 0.0
-    for t, step_terms in enumerate(terms):
-        reward, potential = shaped_rewards(step_terms, np.array([t == steps - 1]), potential, gamma, 3.0)
-        shaped += gamma**t * reward[0]
-        income = step_terms[0, REWARD_TERMS.index("guidance")] + max(step_terms[0, REWARD_TERMS.index("cooperation")], 0.0)
-        base += gamma**t * (step_terms.sum() - income)
-    assert shaped == pytest.approx(base)
-
-
 def test_the_store_carries_each_pursuers_potential_from_step_to_step():
     # two steps of a real world: the stored rewards are the shaped ones, the second step's
     # computed from the potential the first step of the same pursuer ended in.
@@ -146,7 +45,7 @@ def test_the_store_carries_each_pursuers_potential_from_step_to_step():
     scenario = Scenario.preset("small-11")
     rollout = Rollout(World(scenario, 1, seed=5))
     buffer = ReplayBuffer(1000, scenario.evader_slots)
-    store = TransitionStore(buffer, config, scenario.pursuers)
+    store = TransitionStore(buffer, config.data, config.learner.gamma, scenario.pursuers)
     rng = np.random.default_rng(0)
     potential, expected = np.zeros(scenario.pursuers), []
     for _ in range(2):
@@ -154,7 +53,8 @@ def test_the_store_carries_each_pursuers_potential_from_step_to_step():
         states = turn.observation.rows(turn.rows).as_inputs()
         step = rollout.step(rng.integers(0, 9, len(turn.rows)))
         store.add(turn.rows, states, step.actions, step.observation, step.result, rng)
-        reward, potential = shaped_rewards(step.result.reward_terms[0], step.result.collided[0], potential, 0.9, 2.0)
+        reward, potential = taught_reward(step.result.reward_terms[0], step.result.collided[0], step.result.collided[0],
+                                          potential, 0.9, shaping=2.0)
         expected += reward.tolist()
     assert buffer.rewards[: len(buffer)].tolist() == pytest.approx(expected, rel=1e-6)
     assert len(buffer) == 2 * scenario.pursuers
@@ -163,7 +63,7 @@ def test_the_store_carries_each_pursuers_potential_from_step_to_step():
 def test_a_shaped_run_trains_and_records_its_setting(tmp_path):
     run = tmp_path / "shaped"
     train(tiny(potential_shaping=1.0, total_steps=320), run, show_progress=False)
-    assert json.loads((run / "config.json").read_text())["potential_shaping"] == 1.0
+    assert json.loads((run / "config.json").read_text())["data"]["potential_shaping"] == 1.0
     assert read_counters(run).updates > 0
 
 
@@ -216,10 +116,11 @@ def test_saved_buffer_loads_back_oldest_first(tmp_path):
 
 
 def tiny(**changes) -> Config:
-    return Config(
+    return Config.of(
         model="terl", hidden=16, layers=1, heads=2, total_steps=480, num_envs=8, buffer_size=20_000,
-        batch_size=32, learning_starts=160, target_network_frequency=160, eval_frequency=0, log_frequency=160,
-        checkpoint_frequency=240, snapshot_episodes=1, snapshot_preset="small-11", eval_max_steps=20,
+        batch_size=32, learning_starts=160, target_network_frequency=160, log_frequency=160,
+        checkpoint_frequency=240, snapshot_frequency=0, snapshot_episodes=1, snapshot_preset="small-11",
+        eval_max_steps=20,
     ).replace(**changes)
 
 
@@ -243,25 +144,9 @@ def test_seed_generators_seeds_like_a_new_generator():
     assert rng.integers(2**31, size=3).tolist() == np.random.default_rng(5).integers(2**31, size=3).tolist()
 
 
-def test_a_resume_reseeds_only_when_told(tmp_path):
-    run = tmp_path / "run"
-    train(tiny(), run, show_progress=False)
-
-    def resumed(name: str, **changes) -> dict[str, torch.Tensor]:
-        train(tiny(total_steps=640, **changes), tmp_path / name, resume=run, show_progress=False)
-        return load_file(str(tmp_path / name / "model.safetensors"))
-
-    same = [resumed("seed-1"), resumed("seed-3", seed=3)]
-    other = [resumed("reseeded-2", seed=2, resume_reseeds=True), resumed("reseeded-3", seed=3, resume_reseeds=True)]
-    assert all(torch.equal(same[0][k], same[1][k]) for k in same[0])  # the checkpoint's generators continue
-    assert not all(torch.equal(other[0][k], other[1][k]) for k in other[0])  # two samples
-    note = next(r["note"] for r in records(tmp_path / "reseeded-2") if r["kind"] == "resume")
-    assert "seeded anew from seed 2 (resume_reseeds)" in note
-
-
 # ---------------------------------------------------------------- best snapshot
 def test_snapshot_score_ranks_success_then_collisions_and_time():
-    config = Config(eval_max_steps=1000)  # 500 s limit
+    config = Config.of(eval_max_steps=1000).run  # 500 s limit
     good = {"success_rate": 1.0, "collision_ratio_mean": 0.0, "travel_time_s_mean": 50.0}
     slow = {**good, "travel_time_s_mean": 250.0}
     failing = {**slow, "success_rate": 0.75}
@@ -293,7 +178,7 @@ def test_kept_snapshots_export_and_refuse_to_resume(tmp_path):
     assert [folder.name for folder in kept] == ["160", "320"]
     assert sorted(path.name for path in kept[0].iterdir()) == ["config.json", "model.safetensors", "state.json"]
     model, config, counters = load_network(kept[0])
-    assert counters.env_step == 160 and config.keep_snapshots
+    assert counters.env_step == 160 and config.run.keep_snapshots
     assert export_checkpoint(kept[0], tmp_path / "160.onnx").is_file()
     with pytest.raises(ValueError, match="not resumed; resume from its run folder or best/"):
         train(config, tmp_path / "resumed", resume=kept[0], show_progress=False)
@@ -302,7 +187,7 @@ def test_dropout_of_the_transformer_layers_comes_from_the_config():
     from training.checkpoint import network_from_config
 
     for p in (0.0, 0.1):
-        model = network_from_config(Config(hidden=16, layers=1, heads=2, dropout=p))
+        model = network_from_config(Config.of(hidden=16, layers=1, heads=2, dropout=p).network)
         rates = {m.p for m in model.modules() if isinstance(m, torch.nn.Dropout)}
         assert rates == {p}
 
@@ -327,7 +212,7 @@ def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(tmp_path):
     after = read_counters(out)
     assert after.env_step == 640 and after.stages[-1] == "medium-48"
     assert after.best_step in (560, 640)  # its own snapshots, not the curriculum's best
-    assert json.loads((out / "config.json").read_text())["scenario"] == "medium-48"
+    assert json.loads((out / "config.json").read_text())["schedule"]["scenario"] == "medium-48"
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
     assert "its saved replay buffer does not fit" in note and "8 evader slots, this buffer has 14" in note
     assert "snapshots are evaluated anew (curriculum, scenario changed)" in note
@@ -339,7 +224,7 @@ def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(
     run, out = tmp_path / "run", tmp_path / "published"
     train(tiny(), run, show_progress=False)
     assert (run / REPLAY_FILE).is_file()
-    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=True, total_steps=560), tmp_path) == 0
+    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560), tmp_path) == 0
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
     assert "its saved replay buffer was stored under other reward, success_ends_transitions" in note
     assert "evaluated anew" not in note  # same scenarios: the best carries on
@@ -362,7 +247,7 @@ def test_padded_evader_slots_are_empty_and_leave_the_q_values_unchanged():
     assert not padded["evaders"][:, 8:].any() and not padded["mask"][:, 14:26].any()
     assert (padded["mask"][:, :14] == inputs["mask"][:, :14]).all()
     assert (padded["mask"][:, 26:] == inputs["mask"][:, 14:]).all()  # the obstacles' columns move past the padding
-    model = network_from_config(tiny()).eval()
+    model = network_from_config(tiny().network).eval()
     with torch.no_grad():
         q = [model.q_values(*(torch.from_numpy(rows[key]) for key in INPUT_NAMES)) for rows in (inputs, padded)]
     assert torch.allclose(q[0], q[1], atol=1e-6)
@@ -399,7 +284,8 @@ def test_a_collision_ends_on_the_collision_value_and_other_steps_are_unchanged()
     for value in (0.0, -100.0):
         rollout = Rollout(World(scenario, 1, seed=5))
         buffer = ReplayBuffer(100, scenario.evader_slots)
-        store = TransitionStore(buffer, tiny(collision_value=value, gamma=0.9), scenario.pursuers)
+        config = tiny(collision_value=value, gamma=0.9)
+        store = TransitionStore(buffer, config.data, config.learner.gamma, scenario.pursuers)
         turn = rollout.turn()
         states = turn.observation.rows(turn.rows).as_inputs()
         step = rollout.step(np.zeros(len(turn.rows), np.int64))
@@ -413,88 +299,13 @@ def test_a_collision_ends_on_the_collision_value_and_other_steps_are_unchanged()
         tiny(collision_value=5.0)
 
 
-# ---------------------------------------------------------------- taught weights of reward terms
-def first_step(worlds: int):
-    """(turn, step) of the first step of `worlds` small-11 worlds, every pursuer taking action 0."""
-    rollout = Rollout(World(Scenario.preset("small-11"), worlds, seed=5))
-    turn = rollout.turn()
-    return turn, rollout.step(np.zeros(len(turn.rows), np.int64))
-
-
-def test_the_emergency_weight_scales_the_emergency_term_and_nothing_else():
-    turn, step = first_step(1)
-    emergency = REWARD_TERMS.index("emergency")
-    # Pursuer 0 is in an emergency (-5) in this step, pursuer 1 is not.
-    step.result.reward_terms[0, 0, emergency], step.result.reward_terms[0, 1, emergency] = -5.0, 0.0
-    step.result.reward[0] = step.result.reward_terms[0].sum(-1)
-    taught = {}
-    for weight in (1.0, 3.0, 0.0):
-        potential = np.zeros(len(turn.rows))
-        taught[weight] = taught_rewards(step.result, turn.rows, potential, tiny(emergency_weight=weight))[0]
-    assert taught[1.0] == pytest.approx(step.result.reward[0])
-    assert taught[3.0][0] == pytest.approx(taught[1.0][0] - 10.0)  # -5 taught three times
-    assert taught[0.0][0] == pytest.approx(taught[1.0][0] + 5.0)  # not taught at all
-    assert taught[3.0][1] == taught[1.0][1] == taught[0.0][1]
-    with pytest.raises(ConfigError, match="emergency_weight: must be >= 0"):
-        tiny(emergency_weight=-1.0)
-
-
-def test_the_team_penalty_weight_scales_the_team_wide_share_of_the_cooperation_term():
-    turn, step = first_step(2)
-    pursuers = step.result.reward.shape[1]
-    cooperation = REWARD_TERMS.index("cooperation")
-    # World 0 pays every pursuer the imbalance penalty (-10, on top of any share of its own), world 1 none.
-    step.result.team_cooperation[:] = [-10.0, 0.0]
-    step.result.reward_terms[0, :, cooperation] -= 10.0
-    step.result.reward[:] = step.result.reward_terms.sum(-1)
-    taught = {}
-    for weight, shaping in ((1.0, 0.0), (0.0, 0.0), (0.5, 0.0), (1.0, 1.0), (0.0, 1.0)):
-        potential = np.zeros(2 * pursuers)
-        config = tiny(team_penalty_weight=weight, potential_shaping=shaping)
-        taught[weight, shaping] = taught_rewards(step.result, turn.rows, potential, config)[0]
-    world_0 = turn.rows < pursuers
-    assert taught[1.0, 0.0] == pytest.approx(step.result.reward.ravel()[turn.rows])
-    assert taught[0.0, 0.0][world_0] == pytest.approx(taught[1.0, 0.0][world_0] + 10.0)  # not taught
-    assert taught[0.5, 0.0][world_0] == pytest.approx(taught[1.0, 0.0][world_0] + 5.0)  # taught half
-    assert (taught[0.0, 0.0][~world_0] == taught[1.0, 0.0][~world_0]).all()
-    # Shaped, the ring income is paid as a potential: without the team's -10 the -10 + income of
-    # world 0 is its income again, which the shaping takes out of the step's reward.
-    assert taught[0.0, 1.0][~world_0] == pytest.approx(taught[1.0, 1.0][~world_0])
-    with pytest.raises(ConfigError, match="team_penalty_weight: must be >= 0"):
-        tiny(team_penalty_weight=-0.5)
-
-
-# ---------------------------------------------------------------- soft target updates
-def test_a_soft_update_moves_every_target_weight_tau_of_the_way():
-    model, target = (network_from_config(tiny()) for _ in range(2))
-    before = {name: weight.clone() for name, weight in target.state_dict().items()}
-    soft_update(target, model, 0.25)
-    for name, weight in target.state_dict().items():
-        expected = before[name] + 0.25 * (model.state_dict()[name] - before[name])
-        assert torch.allclose(weight, expected, atol=1e-7), name
-    soft_update(target, model, 1.0)
-    assert all(torch.equal(w, model.state_dict()[n]) for n, w in target.state_dict().items())
-
-
-def test_a_soft_target_run_never_copies_the_target_whole(tmp_path):
-    run = tmp_path / "soft"
-    train(tiny(target_tau=0.5, total_steps=320), run, show_progress=False)
-    model, target = load_file(run / "model.safetensors"), load_file(run / "target.safetensors")
-    # The last update moved the target halfway: it differs from the online network, which a
-    # copy at step 320 (a multiple of target_network_frequency = 160) would not leave.
-    assert any(not torch.equal(model[name], target[name]) for name in model)
-    with pytest.raises(ConfigError, match=r"target_tau: must lie in \[0, 1\]"):
-        tiny(target_tau=1.5)
-
-
 # ---------------------------------------------------------------- a falling step size
 def test_the_step_size_falls_linearly_from_decay_start_to_the_end():
     config = tiny(learning_rate=1e-4, final_learning_rate=2e-5, decay_start=200, total_steps=600)
-    assert learning_rate_at(config, 0) == pytest.approx(1e-4)
-    assert learning_rate_at(config, 200) == pytest.approx(1e-4)
-    assert learning_rate_at(config, 400) == pytest.approx(6e-5)
-    assert learning_rate_at(config, 600) == pytest.approx(2e-5)
-    assert learning_rate_at(tiny(learning_rate=1e-4), 400) == 1e-4  # no final rate: constant
+    assert [learning_rate_at(config.learner, 600, step) for step in (0, 200, 400, 600)] == pytest.approx(
+        [1e-4, 1e-4, 6e-5, 2e-5]
+    )
+    assert learning_rate_at(tiny(learning_rate=1e-4).learner, 600, 400) == 1e-4  # no final rate: constant
     with pytest.raises(ConfigError, match="decay_start: 600 must come before total_steps 600"):
         tiny(final_learning_rate=1e-5, decay_start=600, total_steps=600)
 
@@ -504,46 +315,10 @@ def test_a_run_logs_and_uses_the_falling_step_size(tmp_path):
     config = tiny(learning_rate=1e-3, final_learning_rate=1e-4, decay_start=160, total_steps=480)
     train(config, run, show_progress=False)
     logged = {r["env_step"]: r["learning_rate"] for r in records(run) if r["kind"] == "train"}
-    assert logged[320] == pytest.approx(learning_rate_at(config, 320 - config.num_envs))
+    assert logged[320] == pytest.approx(learning_rate_at(config.learner, 480, 320 - config.schedule.num_envs))
     assert logged[480] < logged[320] < 1e-3
     optimizer = torch.load(run / "optimizer.pt", weights_only=True)
     assert optimizer["param_groups"][0]["lr"] == pytest.approx(logged[480])
-
-
-# ---------------------------------------------------------------- averaged snapshots
-def test_an_averaged_snapshot_holds_the_mean_weights_and_says_what_it_averaged(tmp_path, capsys):
-    from training.__main__ import main
-    from training.checkpoint import Counters, META_AVERAGED_FROM, export_checkpoint, load_network, save_snapshot
-    from training.export import read_metadata
-
-    config = tiny()
-    networks = []
-    for step in (160, 320):
-        torch.manual_seed(step)
-        networks.append(network_from_config(config))
-        save_snapshot(tmp_path / str(step), config, networks[-1], Counters(env_step=step, stages=["curriculum-1"]))
-    assert main(["average", str(tmp_path / "320"), str(tmp_path / "160"), "-o", str(tmp_path / "mean")]) == 0
-    assert "the mean of 2 snapshots (environment steps 320, 160)" in capsys.readouterr().out
-    model, _, counters = load_network(tmp_path / "mean")
-    assert counters.env_step == 320  # the longest-trained snapshot's counters
-    first, second = (network.state_dict() for network in networks)
-    for name, weight in model.state_dict().items():
-        expected = ((first[name].double() + second[name].double()) / 2).float()
-        assert torch.equal(weight, expected), name
-    metadata = read_metadata(export_checkpoint(tmp_path / "mean", tmp_path / "mean.onnx"))
-    assert [entry["env_step"] for entry in json.loads(metadata[META_AVERAGED_FROM])] == [320, 160]
-
-
-def test_averaging_refuses_one_snapshot_and_two_networks(tmp_path, capsys):
-    from training.__main__ import main
-    from training.checkpoint import Counters, save_snapshot
-
-    for name, config in (("small", tiny()), ("wide", tiny(hidden=32))):
-        save_snapshot(tmp_path / name, config, network_from_config(config), Counters(env_step=160))
-    assert main(["average", str(tmp_path / "small"), "-o", str(tmp_path / "mean")]) == 1
-    assert "averaging needs at least two snapshots, got 1" in capsys.readouterr().err
-    assert main(["average", str(tmp_path / "small"), str(tmp_path / "wide"), "-o", str(tmp_path / "mean")]) == 1
-    assert "another network than" in capsys.readouterr().err and not (tmp_path / "mean").exists()
 
 
 # ---------------------------------------------------------------- Q-values against returns
@@ -590,7 +365,7 @@ def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp
     from training.__main__ import main
     from training.checkpoint import Counters, save_snapshot
 
-    save_snapshot(tmp_path / "net", tiny(), network_from_config(tiny()), Counters(env_step=160))
+    save_snapshot(tmp_path / "net", tiny(), network_from_config(tiny().network), Counters(env_step=160))
     assert main(["values", str(tmp_path / "net"), "--scenario", "small-11", "--episodes", "1", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)
     assert row["scenario"] == "small-11" and row["pursuer_steps"] > 0 and row["checkpoint"] == str(tmp_path / "net")
@@ -598,32 +373,48 @@ def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp
     assert "unknown scenario 'huge-500'" in capsys.readouterr().err
 
 
-# ---------------------------------------------------------------- shifted values
-def test_a_shifted_checkpoint_moves_every_q_value_and_keeps_the_policy(tmp_path, capsys):
-    from training.__main__ import main
-    from training.checkpoint import load_network
+# ---------------------------------------------------------------- configs of earlier runs
+def test_a_flat_config_of_an_earlier_run_reads_with_its_values():
+    """Runs in progress wrote every field at the top level, retired knobs included: they resume."""
+    path = Path(__file__).parents[2] / "checkpoints" / "value-screen" / "actor-seed-1-200k" / "config.json"
+    flat = json.loads(path.read_text())
+    config = Config.from_file(path)
+    assert flat["n_step"] == 1 and flat["emergency_weight"] == 1.0  # retired, at their neutral values
+    for name, value in flat.items():
+        if name in config.to_dict()[SECTION_OF.get(name, "run")]:
+            assert config.value(name) == (tuple(value) if isinstance(value, list) else value), name
+    assert Config.from_dict(config.to_dict()) == config  # and the config by part reads back the same
+
+
+def test_a_retired_knob_away_from_its_neutral_value_is_refused():
+    with pytest.raises(ConfigError, match="'n_step' was retired .* reads only at 1, got 3"):
+        Config.from_dict({"n_step": 3})
+    assert Config.from_dict({"eval_frequency": 100_000, "target_tau": 0.0}) == Config()
+
+
+# ---------------------------------------------------------------- one evaluator
+def test_a_snapshot_measures_what_terl_rt_eval_measures_on_the_exported_policy(tmp_path):
+    from terl_rt.evaluation.episodes import evaluate_policy
+    from terl_rt.policy.onnx_policy import OnnxPolicy
+    from training.checkpoint import export_checkpoint
 
     run = tmp_path / "run"
-    train(tiny(total_steps=240), run, show_progress=False)
-    assert main(["shift", str(run), "--by", "-300", "-o", str(tmp_path / "shifted")]) == 0
-    assert "moved by -300" in capsys.readouterr().out
-    inputs = Rollout(World(Scenario.preset("small-11"), 1, seed=2)).turn().observation.rows(np.arange(11)).as_inputs()
-    (before, _, counters), (after, _, shifted_counters) = load_network(run), load_network(tmp_path / "shifted")
-    with torch.no_grad():
-        q_before, q_after = (network.q_values(*(torch.from_numpy(inputs[key]) for key in INPUT_NAMES)) for network in (before, after))
-    assert torch.allclose(q_after, q_before - 300.0, atol=1e-3)
-    assert torch.equal(q_after.argmax(1), q_before.argmax(1)) and shifted_counters == counters
-    target_before, target_after = load_file(run / "target.safetensors"), load_file(tmp_path / "shifted" / "target.safetensors")
-    assert torch.allclose(target_after["head.out.bias"], target_before["head.out.bias"] - 300.0)
-    # it resumes: a fine-tune from the shifted checkpoint continues its counters
-    assert fine_tune(tmp_path / "shifted", tmp_path / "tuned", tiny(total_steps=320), tmp_path) == 0
-    assert main(["shift", str(run), "--by", "5", "-o", str(tmp_path / "shifted")]) == 1
-    assert "not empty" in capsys.readouterr().err
+    config = tiny(total_steps=320, snapshot_frequency=320, snapshot_episodes=2, eval_max_steps=30)
+    train(config, run, show_progress=False)
+    snapshot = [r for r in records(run) if r["kind"] == "snapshot"][-1]
+    policy = OnnxPolicy(export_checkpoint(run, tmp_path / "last.onnx"))
+    for evaluation, scenario in zip(snapshot["evaluations"], ("curriculum-5", "small-11")):
+        # `terl-rt eval --scenario S --episodes 2 --seed 20240 --max-steps 30`: episode k on seed 20240 + k
+        result = evaluate_policy(policy, Scenario.preset(scenario), 2, config.run.eval_seed, max_steps=30)
+        assert evaluation["scenario"] == scenario and evaluation["seed"] == config.run.eval_seed
+        assert (evaluation["success_rate"], evaluation["steps_mean"]) == (result.success_rate, result.steps_mean)
+        assert evaluation["collision_ratio_mean"] == pytest.approx(result.collision_ratio_mean)
 
 
-def test_every_committed_experiment_config_loads():
-    """The configs under experiments/ are what the docs tell people to rerun: each must still load."""
-    configs = sorted((Path(__file__).parents[2] / "experiments").glob("*/*.json"))
-    assert len(configs) > 100
-    for path in configs:
-        Config.from_file(path)
+def test_building_a_config_draws_no_random_numbers():
+    # A resume reads its config after restoring the generators: reading it must not move them.
+    torch.manual_seed(0)
+    before = torch.get_rng_state()
+    Config.of(model="terl-no-ts", hidden=32, heads=2)
+    Config.from_dict({"network": {"model": "iqn", "layers": 0, "heads": 0}})
+    assert torch.equal(torch.get_rng_state(), before)

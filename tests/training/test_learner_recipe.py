@@ -15,26 +15,26 @@ from training.buffer import ReplayBuffer, trim_padding
 from training.config import Config, ConfigError
 from training.networks import network_classes
 from training.train import (
-    UPDATE_MODES, TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_rewards, td_loss,
+    UPDATE_MODES, TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_step, td_loss,
     time_updates,
 )
 from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 
 
 def tiny(**changes) -> Config:
-    return Config(model="terl", hidden=16, layers=1, heads=2, dropout=0.0, batch_size=64).replace(**changes)
+    return Config.of(model="terl", hidden=16, layers=1, heads=2, dropout=0.0, batch_size=64).replace(**changes)
 
 
 def curriculum_buffer(config: Config, steps: int = 12) -> ReplayBuffer:
     """A buffer of 20 evader slots holding transitions of curriculum stage 1 (3 pursuers, 1
     evader) and of small-15, as a run's buffer holds several stages."""
-    model = build_learner(config)[0]
+    model = build_learner(config.network, config.learner)[0]
     rng = np.random.default_rng(0)
     buffer = ReplayBuffer(4_000, evader_slots=20)
     for name in ("curriculum-1", "small-15"):
         scenario = Scenario.preset(name)
         rollout = Rollout(World(scenario, 2, seed=1))
-        store = TransitionStore(buffer, config, 2 * scenario.pursuers)
+        store = TransitionStore(buffer, config.data, config.learner.gamma, 2 * scenario.pursuers)
         for _ in range(steps):
             turn = rollout.turn()
             states = turn.observation.rows(turn.rows).as_inputs()
@@ -71,20 +71,20 @@ def test_trimming_cuts_each_group_after_its_last_slot_valid_in_any_row():
 @pytest.mark.parametrize("model", sorted(network_classes()))
 def test_a_trimmed_batch_gives_the_loss_of_the_full_one(model):
     config = tiny(model=model, double_dqn=True)
-    online, target, _ = build_learner(config)
+    online, target, _ = build_learner(config.network, config.learner)
     buffer = curriculum_buffer(config)
     batch = buffer.sample(64, np.random.default_rng(3))
     assert trim_padding(batch.observations)["mask"].shape[1] < batch.observations["mask"].shape[1]
     losses = []
     for trim in (False, True):
         torch.manual_seed(7)  # the same quantile fractions for both
-        losses.append(td_loss(online, target, batch, config, trim).item())
+        losses.append(td_loss(online, target, batch, config.learner, trim).item())
     assert losses[1] == pytest.approx(losses[0], rel=1e-5, abs=1e-6)
 
 
 def test_greedy_actions_of_trimmed_states_are_those_of_the_full_states():
     config = tiny()
-    model = build_learner(config)[0]
+    model = build_learner(config.network, config.learner)[0]
     batch = curriculum_buffer(config).sample(128, np.random.default_rng(4))
     model.eval()
     with torch.inference_mode():
@@ -95,12 +95,12 @@ def test_greedy_actions_of_trimmed_states_are_those_of_the_full_states():
 # ---------------------------------------------------------------- bf16
 def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
     config = tiny()
-    online, target, _ = build_learner(config)
+    online, target, _ = build_learner(config.network, config.learner)
     batch = curriculum_buffer(config).sample(64, np.random.default_rng(5))
     losses = {}
     for bf16 in (False, True):
         torch.manual_seed(7)
-        losses[bf16] = td_loss(online, target, batch, config.replace(bf16=bf16))
+        losses[bf16] = td_loss(online, target, batch, config.replace(bf16=bf16).learner)
     assert losses[True].dtype == torch.float32
     assert losses[True].item() == pytest.approx(losses[False].item(), rel=0.05)
     with torch.autocast("cpu", dtype=torch.bfloat16):
@@ -110,8 +110,8 @@ def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
 
 def test_update_timing_runs_every_mode():
     config = tiny()
-    online, target, optimizer = build_learner(config)
-    rates = time_updates(online, target, optimizer, curriculum_buffer(config), config, np.random.default_rng(0), 0.0)
+    online, target, optimizer = build_learner(config.network, config.learner)
+    rates = time_updates(online, target, optimizer, curriculum_buffer(config), config.learner, np.random.default_rng(0), 0.0)
     assert set(rates) == set(UPDATE_MODES) and all(rate > 0 for rate in rates.values())
 
 
@@ -129,7 +129,7 @@ def test_the_reward_scale_multiplies_every_taught_reward_and_the_collision_value
     taught = {}
     for scale in (1.0, 0.05):
         config = tiny(reward_scale=scale, collision_value=-100.0, gamma=0.9)
-        taught[scale] = taught_rewards(step.result, turn.rows, np.zeros(len(turn.rows)), config)[0]
+        taught[scale] = taught_step(step.result, turn.rows, np.zeros(len(turn.rows)), config.data, config.learner.gamma)[0]
     assert taught[0.05] == pytest.approx(0.05 * taught[1.0])
     assert taught[1.0][0] == pytest.approx(step.result.reward[0, 0] - 90.0)
     with pytest.raises(ConfigError, match="reward_scale: must be > 0"):
@@ -145,14 +145,15 @@ def test_survivors_of_a_terminated_episode_are_bootstrapped_as_the_published_tra
     if cause == "too few pursuers":
         step.result.collided[0, 0] = True
     potential = np.zeros(len(turn.rows))
-    _, terminal, stops = taught_rewards(step.result, turn.rows, potential, tiny())
+    bootstrapped = tiny(success_ends_transitions=False)
+    _, terminal, stops = taught_step(step.result, turn.rows, potential, bootstrapped.data, 0.99)
     assert list(terminal) == [cause == "too few pursuers", False, False]  # only a crash ends its own transition
-    assert stops.all()  # every pursuer's episode stops: n-step windows flush here
-    _, terminal, _ = taught_rewards(step.result, turn.rows, potential, tiny(success_ends_transitions=True))
+    assert stops.all()  # every pursuer's episode stops here
+    _, terminal, _ = taught_step(step.result, turn.rows, potential, tiny(success_ends_transitions=True).data, 0.99)
     assert terminal.all()
     # Into the buffer: the survivors' transitions bootstrap from the state the episode ended in.
     buffer = ReplayBuffer(10, Scenario.preset("curriculum-1").evader_slots)
-    store = TransitionStore(buffer, tiny(), 3)
+    store = TransitionStore(buffer, bootstrapped.data, 0.99, 3)
     states = turn.observation.rows(turn.rows).as_inputs()
     store.add(turn.rows, states, step.actions, step.observation, step.result, np.random.default_rng(0))
     assert list(buffer.dones[:3]) == [cause == "too few pursuers", False, False]
@@ -182,7 +183,7 @@ def test_an_actor_never_refreshed_acts_as_the_first_network_does(tmp_path):
     }
     actions = {}
     for name, config in runs.items():
-        config = config.replace(total_steps=320, num_envs=4, learning_starts=64, batch_size=32, eval_frequency=0,
+        config = config.replace(total_steps=320, num_envs=4, learning_starts=64, batch_size=32, snapshot_frequency=0,
                                 log_frequency=160, checkpoint_frequency=320, buffer_size=5_000)
         train(config, tmp_path / name, show_progress=False)
         buffer = ReplayBuffer(5_000, Scenario.preset("curriculum-1").evader_slots)

@@ -144,7 +144,7 @@ class TargetSelection(nn.Module):
 
 
 def float32_output(layer: nn.Linear, features: torch.Tensor) -> torch.Tensor:
-    """`layer` of `features` in float32 even under autocast (Config.bf16): the values a loss
+    """`layer` of `features` in float32 even under autocast (LearnerConfig.bf16): the values a loss
     compares keep float32's precision, whatever precision the body ran in."""
     with torch.autocast(features.device.type, enabled=False):
         return layer(features.float())

@@ -1,0 +1,134 @@
+"""Recipes (recipes/*.toml): each shipped policy made by one file, and the runner that makes it,
+resuming a recipe cut off where it stopped."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from training.__main__ import main
+from training.checkpoint import read_counters
+from training.config import Config
+from training.recipe import RecipeError, load_recipe, run_recipe, segment_folder
+
+ROOT = Path(__file__).parents[1]
+TINY = ROOT / "tests" / "data" / "tiny-recipe.toml"
+RECIPES = sorted((ROOT / "recipes").rglob("*.toml"))
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+# ---------------------------------------------------------------- the shipped recipes
+def test_every_recipe_loads_and_ships_a_file_of_the_repository():
+    assert len(RECIPES) >= 7
+    for path in RECIPES:
+        recipe = load_recipe(path)
+        assert (ROOT / recipe.ships).is_file(), path
+
+
+def test_the_defaults_are_the_shipped_recipes_settings():
+    # The comparison's TERL changes nothing but its length; the other bodies change only the network.
+    assert load_recipe(ROOT / "recipes" / "comparison" / "terl.toml").segments[0].config == Config.of(total_steps=200_000)
+    for path in (ROOT / "recipes" / "comparison").glob("*.toml"):
+        config = load_recipe(path).segments[0].config
+        assert (config.learner, config.data, config.schedule, config.run) == (
+            Config().learner, Config().data, Config().schedule, Config().run
+        ), path
+
+
+def test_every_shipped_policy_card_names_its_recipe_and_the_sha256_of_its_weights():
+    for onnx in sorted((ROOT / "exported").rglob("*.onnx")):
+        card = onnx.with_suffix(".md").read_text()
+        shipped = onnx.relative_to(ROOT).as_posix()
+        found = re.search(r"\*\*Recipe\*\*: \[`(recipes/[^`]+\.toml)`\]", card)
+        assert found, f"{onnx.with_suffix('.md')} names no recipe"
+        assert load_recipe(ROOT / found.group(1)).ships == shipped
+        assert f"- **Weights**: `{shipped}`, sha256 `{sha256(onnx)}`." in card
+
+
+# ---------------------------------------------------------------- the runner
+def test_a_recipe_makes_the_same_policy_twice(tmp_path):
+    for out in ("first", "second"):
+        assert main(["run", str(TINY), "--out", str(tmp_path / out), "--quiet"]) == 0
+    first, second = tmp_path / "first" / "tiny.onnx", tmp_path / "second" / "tiny.onnx"
+    assert sha256(first) == sha256(second)
+    recipe = load_recipe(TINY)
+    ends = [read_counters(segment_folder(tmp_path / "first", k, s)).env_step for k, s in enumerate(recipe.segments, 1)]
+    assert ends == [160, 240]
+    second_log = (segment_folder(tmp_path / "first", 2, recipe.segments[1]) / "metrics.jsonl").read_text()
+    note = next(json.loads(line)["note"] for line in second_log.splitlines() if '"resume"' in line)
+    assert "its saved replay buffer is not used (a refill)" in note
+
+    # Cut off after its first segment, the recipe goes on from there to the same policy.
+    cut = tmp_path / "cut"
+    shutil.copytree(segment_folder(tmp_path / "first", 1, recipe.segments[0]), segment_folder(cut, 1, recipe.segments[0]))
+    (segment_folder(cut, 2, recipe.segments[1])).mkdir()  # a segment cut off before its first checkpoint
+    (segment_folder(cut, 2, recipe.segments[1]) / "metrics.jsonl").write_text("{}\n")
+    assert main(["run", str(TINY), "--out", str(cut), "--quiet"]) == 0
+    assert sha256(cut / "tiny.onnx") == sha256(first)
+
+
+def test_a_segment_with_a_checkpoint_short_of_its_end_resumes_from_it(tmp_path):
+    recipe = load_recipe(TINY)
+    first, second = (segment_folder(tmp_path, k, s) for k, s in enumerate(recipe.segments, 1))
+    calls = []
+
+    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
+        calls.append((config.schedule.total_steps, Path(out_dir), resume, load_replay))
+        raise KeyboardInterrupt  # cut off
+
+    for folder, step in ((first, 160), (second, 200)):  # the first finished, the second cut off at 200
+        folder.mkdir(parents=True)
+        (folder / "state.json").write_text(json.dumps({"format": 1, "counters": {"env_step": step}}))
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(recipe, tmp_path, stand_in, note=lambda text: None)
+    assert calls == [(240, second, second, True)]
+
+
+def test_a_later_segment_starts_from_the_previous_ones_best_when_told(tmp_path):
+    recipe_file = tmp_path / "best.toml"
+    recipe_file.write_text(TINY.read_text().replace('refill = true', 'start = "best"'))
+    recipe = load_recipe(recipe_file)
+    calls = []
+
+    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
+        calls.append((Path(out_dir).name, resume))
+        raise KeyboardInterrupt
+
+    first = segment_folder(tmp_path / "out", 1, recipe.segments[0])
+    first.mkdir(parents=True)
+    (first / "state.json").write_text(json.dumps({"format": 1, "counters": {"env_step": 160}}))
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(recipe, tmp_path / "out", stand_in, note=lambda text: None)
+    assert calls == [("2-small", first / "best")]
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (('steps = 240', 'steps = 100'), "'steps' 100 must lie past the previous segment's end, 160"),
+        (('hidden = 16', 'hidden = 16\nlearning_rate = 1e-3'), "'learning_rate' belongs in 'learner', not 'network'"),
+        (('num_envs = 4', 'num_envs = 4\ntotal_steps = 9'), "give the segment's end as 'steps'"),
+        (('refill = true', 'refill = true\ncolour = "red"'), "unknown key 'colour'"),
+        (('[segment.learner]\nbatch_size', '[segment.learner]\nkappa = 10.0\nbatch_size'), "'kappa' was retired"),
+    ],
+)
+def test_a_malformed_recipe_is_refused_naming_the_segment_and_key(tmp_path, change, message):
+    path = tmp_path / "bad.toml"
+    text = TINY.read_text()
+    assert change[0] in text
+    path.write_text(text.replace(change[0], change[1], 1))
+    with pytest.raises(RecipeError, match=re.escape(message)):
+        load_recipe(path)
+
+
+def test_run_of_a_missing_recipe_is_one_error_line(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "absent.toml"), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.startswith("Error: ")

@@ -1,0 +1,204 @@
+"""Recipes: how a shipped policy is made, as one TOML file, and the runner that makes it.
+
+A recipe (recipes/<policy>.toml) is an ordered list of segments. Each names the environment
+step it ends at and only the config fields it changes, by part (training.config): the first
+segment changes the defaults, each later one the segment before it, and continues that
+segment's network, optimizer, counters and replay buffer (a fine-tune when it changes fields).
+
+    ships = "exported/terl.onnx"    # the file it makes (a path of the repository)
+
+    [[segment]]
+    name = "curriculum"             # the segment's folder: OUT/1-curriculum/
+    steps = 200_000                 # environment step it ends at
+    [segment.network]
+    hidden = 64
+
+    [[segment]]
+    name = "medium"
+    steps = 350_000
+    start = "best"                  # continue the previous segment's best snapshot (default "last")
+    refill = true                   # refill the replay buffer instead of loading the saved one
+    [segment.schedule]
+    curriculum = false
+    scenario = "medium-48"
+
+`run_recipe` trains the segments in order into OUT/<k>-<name>/ and exports the last segment's
+best snapshot (or its last checkpoint: `ships_from = "last"`) as OUT/<stem of ships>.onnx. A
+recipe cut off (a killed run, a lost machine) runs again with the same command: finished
+segments are skipped and a segment with a checkpoint is resumed from it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+import sys
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser, from PyPI (the train extra installs it there)
+    import tomli as tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from training.checkpoint import STATE_FILE, export_checkpoint, read_counters
+from training.config import SECTIONS, Config, ConfigError, read_fields
+
+SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
+"""The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""
+STARTS = ("last", "best")
+"""What a later segment continues: the previous segment's last checkpoint or its best snapshot."""
+
+
+class RecipeError(ConfigError):
+    """A recipe that is malformed; the message names the file and the segment."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One stretch of training under one config."""
+
+    name: str
+    """the segment's name, also its folder's (OUT/<k>-<name>)."""
+    config: Config
+    """the whole config it trains under (its schedule's total_steps: the step it ends at)."""
+    start: str
+    """"last" or "best": which checkpoint of the previous segment it continues (unused by the first)."""
+    refill: bool
+    """refill the replay buffer instead of loading the previous segment's saved one."""
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A shipped policy's recipe: what it ships as and its segments in order."""
+
+    path: Path
+    ships: str
+    """the policy file it makes, as the repository names it (e.g. exported/terl.onnx)."""
+    ships_from: str
+    """"best" or "last": which checkpoint of the last segment is exported."""
+    segments: tuple[Segment, ...]
+
+    @property
+    def sha256(self) -> str:
+        """Hex SHA-256 of the recipe file (a model card names the recipe by path and hash)."""
+        return hashlib.sha256(self.path.read_bytes()).hexdigest()
+
+
+def load_recipe(path: str | Path) -> Recipe:
+    """Read and check a recipe file; RecipeError names the file, the segment and the key at fault."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such recipe") from None
+    except tomllib.TOMLDecodeError as error:
+        raise RecipeError(f"{path}: not valid TOML: {error}") from None
+    unknown = sorted(set(data) - {"ships", "ships_from", "segment"})
+    if unknown:
+        raise RecipeError(f"{path}: unknown key '{unknown[0]}' (known: ships, ships_from, segment)")
+    if not isinstance(data.get("ships"), str) or not data["ships"].endswith(".onnx"):
+        raise RecipeError(f"{path}: 'ships' must name the .onnx file it makes, got {data.get('ships')!r}")
+    ships_from = data.get("ships_from", "best")
+    if ships_from not in STARTS:
+        raise RecipeError(f"{path}: 'ships_from' must be one of {', '.join(STARTS)}, got {ships_from!r}")
+    tables = data.get("segment")
+    if not isinstance(tables, list) or not tables:
+        raise RecipeError(f"{path}: no [[segment]]; a recipe is one or more segments")
+    segments: list[Segment] = []
+    config = Config()
+    for index, table in enumerate(tables, start=1):
+        where = f"{path}: segment {index} ({table.get('name', 'unnamed')})"
+        segment = _segment(table, config, previous=segments[-1] if segments else None, where=where)
+        segments.append(segment)
+        config = segment.config
+    names = [segment.name for segment in segments]
+    if len(set(names)) != len(names):
+        raise RecipeError(f"{path}: two segments share a name in {names}")
+    return Recipe(path, data["ships"], ships_from, tuple(segments))
+
+
+def _segment(table: dict[str, Any], base: Config, previous: Segment | None, where: str) -> Segment:
+    unknown = sorted(set(table) - set(SEGMENT_KEYS))
+    if unknown:
+        raise RecipeError(f"{where}: unknown key '{unknown[0]}' (known: {', '.join(SEGMENT_KEYS)})")
+    name, steps = table.get("name"), table.get("steps")
+    if not isinstance(name, str) or not name or not all(c.isalnum() or c in "-_." for c in name):
+        raise RecipeError(f"{where}: 'name' must be a word of letters, digits, '-', '_' or '.', got {name!r}")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise RecipeError(f"{where}: 'steps' must be a positive whole number of environment steps, got {steps!r}")
+    if previous is not None and steps <= previous.config.schedule.total_steps:
+        raise RecipeError(
+            f"{where}: 'steps' {steps} must lie past the previous segment's end, {previous.config.schedule.total_steps}"
+        )
+    start = table.get("start", "last")
+    if start not in STARTS:
+        raise RecipeError(f"{where}: 'start' must be one of {', '.join(STARTS)}, got {start!r}")
+    refill = table.get("refill", False)
+    if not isinstance(refill, bool):
+        raise RecipeError(f"{where}: 'refill' must be true or false, got {refill!r}")
+    if previous is None and ("start" in table or "refill" in table):
+        raise RecipeError(f"{where}: the first segment starts from nothing; 'start' and 'refill' belong to later ones")
+    changes = {section: table[section] for section in SECTIONS if section in table}
+    for section, fields in changes.items():
+        if "total_steps" in fields:
+            raise RecipeError(f"{where}: give the segment's end as 'steps', not schedule.total_steps")
+    try:
+        config = base.replace(**read_fields(changes, source=where), total_steps=steps)
+    except ConfigError as error:
+        message = str(error)
+        raise RecipeError(message if message.startswith(where) else f"{where}: {message}") from None
+    return Segment(name, config, start, refill)
+
+
+def segment_folder(out: Path, index: int, segment: Segment) -> Path:
+    """Where segment `index` (from 1) trains: OUT/<index>-<name>."""
+    return out / f"{index}-{segment.name}"
+
+
+def finished(folder: Path, segment: Segment) -> bool:
+    """Whether `folder` holds the segment's last checkpoint."""
+    return (folder / STATE_FILE).is_file() and read_counters(folder).env_step >= segment.config.schedule.total_steps
+
+
+Train = Callable[..., Any]
+"""training.train.train, or a stand-in with its signature (config, out_dir, resume=None,
+show_progress=True, load_replay=True)."""
+
+
+def run_recipe(
+    recipe: Recipe, out: str | Path, train: Train, threads: int | None = None, show_progress: bool = True,
+    note: Callable[[str], None] = print,
+) -> Path:
+    """Train every segment of `recipe` not yet finished under `out`, then export the policy it
+    ships; returns the .onnx path (OUT/<stem of ships>.onnx).
+
+    A segment with a checkpoint but short of its end is resumed from it; one without is started
+    (its folder emptied first, so its metrics.jsonl holds one run), from nothing or from the
+    previous segment's `start` checkpoint. `threads` replaces every segment's run.threads (torch
+    threads are set by the caller from the returned configs: see `python -m training run`).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    previous: Path | None = None
+    for index, segment in enumerate(recipe.segments, start=1):
+        folder = segment_folder(out, index, segment)
+        config = segment.config if threads is None else segment.config.replace(threads=threads)
+        label = f"segment {index}/{len(recipe.segments)} ({segment.name}, to {config.schedule.total_steps:,} steps)"
+        if finished(folder, segment):
+            note(f"{label}: finished, in {folder}")
+        elif (folder / STATE_FILE).is_file():
+            note(f"{label}: resuming its checkpoint in {folder}")
+            train(config, folder, resume=folder, show_progress=show_progress)
+        else:
+            if folder.exists():
+                shutil.rmtree(folder)
+            source = None if previous is None else (previous / "best" if segment.start == "best" else previous)
+            note(f"{label}: starting" + ("" if source is None else f" from {source}"))
+            train(config, folder, resume=source, show_progress=show_progress, load_replay=not segment.refill)
+        previous = folder
+    assert previous is not None  # a recipe has at least one segment
+    shipped = previous / "best" if recipe.ships_from == "best" else previous
+    return export_checkpoint(shipped, out / Path(recipe.ships).name)
