@@ -74,6 +74,7 @@ from training.config import (
 from training.export import INPUT_NAMES
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.networks import QNetwork
+from training.stops import StopRequests, TrainingStopped
 from training.torch_policy import TorchPolicy, as_tensors, network_device
 
 REPLAY_FILE = "replay.npz"
@@ -492,8 +493,9 @@ def train(
     buffer (replay.npz, `DataConfig.save_replay`) and the best snapshot (best/,
     `RunConfig.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
     counters, RNG states and, when it was saved there, the replay buffer come from that
-    checkpoint (`restore_buffer`; `load_replay` false refills it instead). The caller sets
-    torch's thread count.
+    checkpoint (`restore_buffer`; `load_replay` false refills it instead). SIGINT (Ctrl-C) or
+    SIGTERM ends the batch step, writes a whole checkpoint and raises TrainingStopped. The
+    caller sets torch's thread count.
     """
     network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
     out_dir = Path(out_dir)
@@ -517,6 +519,7 @@ def train(
     buffer = ReplayBuffer(data.buffer_size, buffer_evader_slots(scenarios))
     learning_starts, refill_to = data.learning_starts, 0
     if resume is not None:
+        progress.show(f"loading the replay buffer of {resume}")
         learning_starts, refill_to, note = restore_buffer(resume, saved_config, config, counters, buffer, load_replay)
         # A fine-tune that evaluates snapshots on other scenarios, or a run whose snapshots were
         # measured by another evaluator, starts its own best: such scores do not compare.
@@ -542,111 +545,118 @@ def train(
     session_start, session_step = time.perf_counter(), counters.env_step
     wall_before = counters.wall_seconds
 
-    while counters.env_step < schedule.total_steps:
-        # --- curriculum: a new stage gets new worlds; episodes under way are dropped
-        stage = training_scenarios(schedule, data.reward, counters.env_step)
-        if stage_label(stage) != stage_name:
-            groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in stage]
-            stage_name = stage_label(stage)
-            if stage_name not in counters.stages:
-                counters.stages.append(stage_name)
-            write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
-            progress.note(f"environment step {counters.env_step}: stage {stage_name}")
-        group = groups[counters.env_step // num_envs % len(groups)]
+    with StopRequests() as stops:
+        while counters.env_step < schedule.total_steps:
+            # --- curriculum: a new stage gets new worlds; episodes under way are dropped
+            stage = training_scenarios(schedule, data.reward, counters.env_step)
+            if stage_label(stage) != stage_name:
+                groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in stage]
+                stage_name = stage_label(stage)
+                if stage_name not in counters.stages:
+                    counters.stages.append(stage_name)
+                write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
+                progress.note(f"environment step {counters.env_step}: stage {stage_name}")
+            group = groups[counters.env_step // num_envs % len(groups)]
 
-        # --- collect: one batched forward for every active pursuer, epsilon-greedy each
-        epsilon = linear_schedule(
-            schedule.start_e, schedule.end_e, schedule.exploration_fraction * schedule.total_steps, counters.env_step
-        )
-        learning_rate = learning_rate_at(learner, schedule.total_steps, counters.env_step)
-        for param_group in optimizer.param_groups:  # the config rules, not the rate a resumed optimizer saved
-            param_group["lr"] = learning_rate
-        turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
-        states = turn.observation.rows(turn.rows).as_inputs()
-        step = group.rollout.step(epsilon_greedy(actor, states, epsilon, rng))
-
-        # --- store (the next observation is the one before any restart)
-        group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
-
-        # --- episode bookkeeping
-        group.returns += step.result.reward.sum(axis=1) / group.scenario.pursuers
-        group.terms += step.result.reward_terms.sum(axis=1) / group.scenario.pursuers
-        group.team += step.result.team_cooperation * step.result.acted.sum(axis=1) / group.scenario.pursuers
-        for env, outcome in step.outcomes.items():
-            recent.append((
-                outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps,
-                group.terms[env].copy(), group.team[env],
-            ))
-            group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
-            counters.episodes += 1
-        previous_step = counters.env_step
-        counters.env_step += num_envs
-
-        # --- learn: the updates due in this batch step, then the target copy when due
-        if refill_to and len(buffer) >= refill_to:
-            learning_starts, refill_to = max(learning_starts, counters.env_step), 0
-        if not refill_to and counters.env_step >= learning_starts and len(buffer) >= learner.batch_size:
-            # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
-            due = crossings(max(previous_step, learning_starts), counters.env_step, learner.train_frequency)
-            for _ in range(due):
-                batch = buffer.sample(learner.batch_size, rng)
-                last_loss = learn(model, target, optimizer, batch, learner)
-                losses.append(last_loss)
-                counters.updates += 1
-            if crossings(previous_step, counters.env_step, learner.target_network_frequency):
-                target.load_state_dict(model.state_dict())
-        if actor is not model and crossings(previous_step, counters.env_step, learner.actor_update_frequency):
-            actor.load_state_dict(model.state_dict())
-
-        # --- evaluate, snapshot and log
-        finished = counters.env_step >= schedule.total_steps
-        counters.wall_seconds = wall_before + time.perf_counter() - session_start
-        if run.snapshot_frequency and (
-            crossings(previous_step, counters.env_step, run.snapshot_frequency) or finished
-        ):
-            record, better = take_snapshot(model, groups[0].scenario, run, counters.best_score)
-            write_record(log_path, {**record, "env_step": counters.env_step})
-            if run.keep_snapshots:
-                save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
-            if better:
-                counters.best_score, counters.best_step = record["score"], counters.env_step
-                counters.replay_transitions = len(buffer)
-                save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
-                progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
-        if finished or crossings(previous_step, counters.env_step, run.log_frequency):
-            session_seconds = time.perf_counter() - session_start
-            record = {
-                "kind": "train",
-                "env_step": counters.env_step,
-                "episodes": counters.episodes,
-                "updates": counters.updates,
-                "stage": stage_name,
-                "epsilon": epsilon,
-                "learning_rate": learning_rate,
-                "loss": float(np.mean(losses)) if losses else None,
-                **recent_means(recent),
-                "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),
-                "wall_seconds": counters.wall_seconds,
-            }
-            write_record(log_path, record)
-            losses.clear()
-        if progress.due() or finished:
-            means = recent_means(recent)
-            success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
-            loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
-            progress.show(
-                f"step {counters.env_step:,}/{schedule.total_steps:,} | "
-                f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
-                f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
-                f"eps {epsilon:.3f} | updates {counters.updates} | {stage_name}"
+            # --- collect: one batched forward for every active pursuer, epsilon-greedy each
+            epsilon = linear_schedule(
+                schedule.start_e, schedule.end_e, schedule.exploration_fraction * schedule.total_steps, counters.env_step
             )
+            learning_rate = learning_rate_at(learner, schedule.total_steps, counters.env_step)
+            for param_group in optimizer.param_groups:  # the config rules, not the rate a resumed optimizer saved
+                param_group["lr"] = learning_rate
+            turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
+            states = turn.observation.rows(turn.rows).as_inputs()
+            step = group.rollout.step(epsilon_greedy(actor, states, epsilon, rng))
 
-        # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
-        if finished or crossings(previous_step, counters.env_step, run.checkpoint_frequency):
-            counters.replay_transitions = max(len(buffer), refill_to)  # a refill cut off still owes what it held
-            if data.save_replay:
-                buffer.save(out_dir / REPLAY_FILE)
-            save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
+            # --- store (the next observation is the one before any restart)
+            group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
+
+            # --- episode bookkeeping
+            group.returns += step.result.reward.sum(axis=1) / group.scenario.pursuers
+            group.terms += step.result.reward_terms.sum(axis=1) / group.scenario.pursuers
+            group.team += step.result.team_cooperation * step.result.acted.sum(axis=1) / group.scenario.pursuers
+            for env, outcome in step.outcomes.items():
+                recent.append((
+                    outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps,
+                    group.terms[env].copy(), group.team[env],
+                ))
+                group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
+                counters.episodes += 1
+            previous_step = counters.env_step
+            counters.env_step += num_envs
+
+            # --- learn: the updates due in this batch step, then the target copy when due
+            if refill_to and len(buffer) >= refill_to:
+                learning_starts, refill_to = max(learning_starts, counters.env_step), 0
+            if not refill_to and counters.env_step >= learning_starts and len(buffer) >= learner.batch_size:
+                # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
+                due = crossings(max(previous_step, learning_starts), counters.env_step, learner.train_frequency)
+                for _ in range(due):
+                    batch = buffer.sample(learner.batch_size, rng)
+                    last_loss = learn(model, target, optimizer, batch, learner)
+                    losses.append(last_loss)
+                    counters.updates += 1
+                if crossings(previous_step, counters.env_step, learner.target_network_frequency):
+                    target.load_state_dict(model.state_dict())
+            if actor is not model and crossings(previous_step, counters.env_step, learner.actor_update_frequency):
+                actor.load_state_dict(model.state_dict())
+
+            # --- evaluate, snapshot and log
+            finished = counters.env_step >= schedule.total_steps
+            counters.wall_seconds = wall_before + time.perf_counter() - session_start
+            if run.snapshot_frequency and (
+                crossings(previous_step, counters.env_step, run.snapshot_frequency) or finished
+            ):
+                progress.show(f"step {counters.env_step:,}: snapshot evaluation ({run.snapshot_episodes} episodes a scenario)")
+                record, better = take_snapshot(model, groups[0].scenario, run, counters.best_score)
+                write_record(log_path, {**record, "env_step": counters.env_step})
+                if run.keep_snapshots:
+                    save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
+                if better:
+                    counters.best_score, counters.best_step = record["score"], counters.env_step
+                    counters.replay_transitions = len(buffer)
+                    save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
+                    progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
+            if finished or crossings(previous_step, counters.env_step, run.log_frequency):
+                session_seconds = time.perf_counter() - session_start
+                record = {
+                    "kind": "train",
+                    "env_step": counters.env_step,
+                    "episodes": counters.episodes,
+                    "updates": counters.updates,
+                    "stage": stage_name,
+                    "epsilon": epsilon,
+                    "learning_rate": learning_rate,
+                    "loss": float(np.mean(losses)) if losses else None,
+                    **recent_means(recent),
+                    "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),
+                    "wall_seconds": counters.wall_seconds,
+                }
+                write_record(log_path, record)
+                losses.clear()
+            if progress.due() or finished:
+                means = recent_means(recent)
+                success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
+                loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
+                progress.show(
+                    f"step {counters.env_step:,}/{schedule.total_steps:,} | "
+                    f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
+                    f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
+                    f"eps {epsilon:.3f} | updates {counters.updates} | {stage_name}"
+                )
+
+            # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
+            stopping = stops.received is not None
+            if finished or stopping or crossings(previous_step, counters.env_step, run.checkpoint_frequency):
+                counters.replay_transitions = max(len(buffer), refill_to)  # a refill cut off still owes what it held
+                if data.save_replay:
+                    progress.show(f"step {counters.env_step:,}: saving the replay buffer ({len(buffer):,} transitions)")
+                    buffer.save(out_dir / REPLAY_FILE)
+                save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
+            if stopping:
+                progress.close()
+                raise TrainingStopped(stops.received, counters.env_step, out_dir)
 
     progress.close()
     return counters

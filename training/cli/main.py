@@ -16,6 +16,7 @@ from training.cli.train import train_command
 from training.cli.values import values_command
 from training.config import ConfigError
 from training.curves import CurvesError
+from training.stops import TrainingStopped
 
 
 class TrainingGroup(TerlGroup):
@@ -50,4 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Abort:
         click.echo("Aborted!", err=True)
         return 1
+    except TrainingStopped as stop:  # Ctrl-C or SIGTERM: the checkpoint is written, the run can go on
+        click.echo(f"Stopped: {stop}", err=True)
+        return 130
     return status if isinstance(status, int) else 0
