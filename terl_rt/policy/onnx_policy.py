@@ -313,7 +313,8 @@ class OnnxPolicy:
     def evaluate(self, observation: Observation | Mapping[str, np.ndarray]) -> PolicyOutput:
         """Q-values, target weights and greedy actions for every row of `observation`.
 
-        All rows go to onnxruntime in one call, leading dims flattened and restored.
+        All rows go to onnxruntime in one call, leading dims flattened and restored; a
+        row's outputs are the same, bit for bit, whatever rows share its call.
         Raises ValueError for an observation that breaks the layout (see
         `observation_inputs`).
         """
@@ -329,11 +330,16 @@ class OnnxPolicy:
                 actions=np.zeros(leading, np.int64),
             )
 
+        # A single row goes in twice: onnxruntime's one-row kernels round differently from
+        # its batched ones, and a row's result must not depend on the rows beside it
+        # (an episode evaluated alone or batched with others decides the same, bit for bit).
         feed = {
             name: np.ascontiguousarray(array.reshape((rows,) + array.shape[len(leading):]))
             for name, array in inputs.items()
         }
-        results = self._session.run(self._output_names, feed)
+        if rows == 1:
+            feed = {name: np.concatenate([array, array]) for name, array in feed.items()}
+        results = [result[:rows] for result in self._session.run(self._output_names, feed)]
         q_values = self._checked_output("q_values", results[0], (rows, NUM_PURSUER_ACTIONS))
         target_weights = None
         if self.has_target_weights:

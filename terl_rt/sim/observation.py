@@ -7,6 +7,7 @@ the names and feature widths are the contract's (terl_rt.policy.contract).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -62,6 +63,11 @@ class Observation:
     def as_inputs(self) -> dict[str, np.ndarray]:
         """The ONNX contract inputs by name (INPUT_NAMES, the names of their fields here)."""
         return {name: getattr(self, name) for name in INPUT_NAMES}
+
+    def envs(self, index: np.ndarray) -> Observation:
+        """The environments at `index` [K] int of observations with leading shape [B, N]:
+        leading shape [K, N]."""
+        return Observation(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
 
     def rows(self, index: np.ndarray) -> Observation:
         """The rows at flat indices `index` [R] (b * N + n) of observations with leading
