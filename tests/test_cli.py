@@ -173,6 +173,15 @@ def test_bench_policy_table(files):
     assert "ms per step" in result.stdout
 
 
+def test_bench_eval_times_batch_sizes_side_by_side_with_the_same_episodes(files):
+    result = invoke("bench", "eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "3",
+                    "--max-steps", "4", "--workers", "1", "--envs", "1", "--envs", "3", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert [row["envs"] for row in out["rows"]] == [1, 3] and out["identical"]
+    assert all(row["episodes"] == 3 and row["run_s"] > 0 for row in out["rows"])
+
+
 def _bad_inputs(files, log) -> dict[str, tuple]:
     folder = files["folder"]
     bad_json = folder / "bad.json"

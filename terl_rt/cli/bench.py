@@ -23,6 +23,7 @@ from terl_rt.cli.options import (
     threads_option,
 )
 from terl_rt.evaluation.backends import RayMissing
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.speed import (
     SCALING_PURSUERS,
     backend_speeds,
@@ -105,6 +106,56 @@ def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_jso
         f"  {result.ms_per_step:.3f} ms per step (p50 {result.ms_p50:.3f}, p90 {result.ms_p90:.3f}), "
         f"{result.us_per_pursuer:.1f} us per pursuer"
     )
+
+
+@bench.command("eval")
+@policy_option
+@scenarios_option
+@suite_option
+@episodes_option
+@seed_option
+@max_steps_option
+@click.option(
+    "--workers", type=click.IntRange(min=1, max=MAX_WORKERS), default=2, show_default=True,
+    help="Local worker processes, each running batches.",
+)
+@click.option(
+    "--envs", "env_counts", type=click.IntRange(min=1, max=4096), multiple=True, default=(1, BATCH_ENVS),
+    show_default=True, help="Episodes a batch runs at once, to time in turn (1: each episode alone, as before batching).",
+)
+@click.option(
+    "--repeat", type=click.IntRange(min=1, max=100), default=1, show_default=True,
+    help="Rounds over the batch sizes; each one's best round counts.",
+)
+@json_option
+def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, workers, env_counts, repeat,
+                 as_json) -> None:
+    """Evaluation speed by batch size, side by side: the same evaluation (scenario by
+    scenario, as `terl-rt eval` runs it, on the local backend) with each --envs in turn,
+    --repeat rounds, so all see the same load. Prints the best round's time, episodes per
+    second, each one's speed-up over the first --envs, and whether every episode came out
+    the same. Every worker runs its policy on one onnxruntime thread."""
+    policy = open_policy(policy_path, threads=1)
+    scenarios = resolve_scenarios(scenario_names, None, suite)
+    rows = backend_speeds(policy, scenarios, episodes, seed, workers, backends=("local",), repeat=repeat,
+                          max_steps=max_steps, envs=env_counts)
+    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    if as_json:
+        click.echo(json.dumps({
+            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
+            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
+            "identical": identical,
+        }))
+        return
+    click.echo(
+        f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}, "
+        f"{workers} worker(s)" + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
+    )
+    click.echo(f"{'envs':>6}{'episodes':>10}{'run (s)':>10}{'episodes/s':>12}{'speed-up':>10}")
+    for row in rows:
+        click.echo(f"{row.envs:>6}{row.episodes:>10}{row.run_s:>10.1f}{row.episodes_per_s:>12.2f}"
+                   f"{rows[0].run_s / row.run_s:>9.2f}x")
+    click.echo(f"every episode the same at every batch size: {'yes' if identical else 'NO'}")
 
 
 @bench.command("backends")

@@ -1,10 +1,12 @@
 """Evaluate a policy on a scenario: success rate, travel time, collision ratio (world.md section 10).
 
-Episode k of an evaluation with seed s runs `Simulator(scenario, seed=s + k)`, so any
-episode can be run again alone (terl_rt.evaluation.play runs one). Where the episodes
-run is a backend (terl_rt.evaluation.backends): this process, spawned processes
+Episode k of an evaluation with seed s is the episode of `Simulator(scenario, seed=s + k)`,
+bit for bit, so any episode can be run again alone (terl_rt.evaluation.play runs one).
+The episodes run in batches, each batch's together in one World with one policy call a
+step for all their deciding pursuers (terl_rt.evaluation.play.batch_steps). Where the
+batches run is a backend (terl_rt.evaluation.backends): this process, spawned processes
 (`workers > 1`) or Ray tasks; results and logs are the same on each, in episode order,
-whatever the number of workers (terl_rt.evaluation.runs).
+whatever the number of workers or the batch size (terl_rt.evaluation.runs).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals
@@ -111,12 +114,14 @@ def evaluate_policy(
     progress: Progress | None = None,
     threads: int | None = None,
     backend: Backend | None = None,
+    envs: int = BATCH_ENVS,
 ) -> ScenarioResult:
     """Evaluate `policy` on `episodes` episodes of `scenario`; episode k uses seed + k.
 
     max_steps overrides the scenario's step limit. backend: where the episodes run
     (terl_rt.evaluation.backends.open_backend; the caller closes it); without one they run
-    here, or in `workers` spawned processes when workers > 1. threads: onnxruntime
+    here, or in `workers` spawned processes when workers > 1, each batch running `envs`
+    episodes at once (a backend has its own). threads: onnxruntime
     intra-op threads of a policy given as a path and of each worker's policy (workers
     default to 1). log_path: an MCAP file to write every step to (see
     terl_rt.logs.format), or an open EpisodeLogWriter to append to (the caller closes
@@ -127,9 +132,9 @@ def evaluate_policy(
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     if backend is None:
-        backend = LocalBackend(workers, threads)
-    elif workers != 1:
-        raise ValueError("pass workers to the backend, not to evaluate_policy as well")
+        backend = LocalBackend(workers, threads, envs)
+    elif workers != 1 or envs != BATCH_ENVS:
+        raise ValueError("pass workers and envs to the backend, not to evaluate_policy as well")
     if max_steps is not None:
         scenario = scenario.replace(max_steps=max_steps)
 

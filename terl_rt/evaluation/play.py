@@ -29,6 +29,13 @@ BATCH_ENVS = 20
 """environments of a batch's World: the episodes that run at once (each policy call
 holds their deciding pursuers; 20 large-80 episodes make 1,600 rows)."""
 
+def check_envs(envs: int) -> int:
+    """`envs`, a batch's environments, checked: a positive integer."""
+    if isinstance(envs, bool) or not isinstance(envs, int) or envs < 1:
+        raise ValueError(f"envs (episodes run at once) must be a positive integer, got {envs!r}")
+    return envs
+
+
 Message = tuple[str, int, Any]
 """("step", j, StepRecord) or ("end", j, EpisodeMetrics), j the episode's index into the seeds."""
 

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 
-from terl_rt.evaluation.play import batch_steps
+from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
 from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, sigint_as_flag
 from terl_rt.logs.format import StepRecord
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
@@ -30,13 +30,15 @@ from terl_rt.sim.scenario import Scenario
 class LocalBackend:
     """Runs batches of episodes on this machine: in this process when `workers` is 1, else
     in that many spawned processes. threads: onnxruntime intra-op threads of each worker's
-    policies (default 1; with one worker the policies are used as they were opened)."""
+    policies (default 1; with one worker the policies are used as they were opened).
+    envs: episodes a batch runs at once (its World's environments; 1 runs them one by one)."""
 
-    def __init__(self, workers: int = 1, threads: int | None = None):
+    def __init__(self, workers: int = 1, threads: int | None = None, envs: int = BATCH_ENVS):
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
         self.workers = workers
         self.threads = threads
+        self.envs = check_envs(envs)
 
     def __enter__(self) -> LocalBackend:
         return self
@@ -54,10 +56,11 @@ class LocalBackend:
             for batch in parts:
                 spec = specs[batch[0]]
                 seeds = [specs[number].seed for number in batch]
-                for kind, j, payload in batch_steps(policies[spec.policy], spec.scenario, seeds, record):
+                for kind, j, payload in batch_steps(policies[spec.policy], spec.scenario, seeds, record, self.envs):
                     deliver(kind, batch[j], payload)
             return
-        _run_in_workers(policies, specs, parts, min(self.workers, len(parts)), self.threads, record, deliver)
+        _run_in_workers(policies, specs, parts, min(self.workers, len(parts)), self.threads, self.envs, record,
+                        deliver)
 
 
 # --- worker processes ------------------------------------------------------------------
@@ -109,10 +112,11 @@ def _init_worker(files: tuple[tuple[str, str], ...], threads: int | None, stop, 
             raise ContractError(f"{path}: the policy file changed on disk during the evaluation")
 
 
-def _worker_batch(numbers: list[int], policy: int, scenario: Scenario, seeds: list[int], record: bool) -> None:
-    """Run the batch of specs `numbers` (seeds `seeds`), sending ("step", number, StepRecord)
+def _worker_batch(numbers: list[int], policy: int, scenario: Scenario, seeds: list[int], envs: int,
+                  record: bool) -> None:
+    """Run the batch of specs `numbers` (seeds `seeds`, `envs` at once), sending ("step", number, StepRecord)
     for every step (when `record`) and ("end", number, metrics) to the parent as they happen."""
-    for kind, j, payload in batch_steps(_worker_policies[policy], scenario, seeds, record, stop=_worker_stop.is_set):
+    for kind, j, payload in batch_steps(_worker_policies[policy], scenario, seeds, record, envs, _worker_stop.is_set):
         _send((kind, numbers[j], payload))
 
 
@@ -130,6 +134,7 @@ def _run_in_workers(
     parts: list[list[int]],
     workers: int,
     threads: int | None,
+    envs: int,
     record: bool,
     deliver: Deliver,
 ) -> None:
@@ -147,7 +152,7 @@ def _run_in_workers(
         try:
             futures = [
                 pool.submit(_worker_batch, batch, specs[batch[0]].policy, specs[batch[0]].scenario,
-                            [specs[number].seed for number in batch], record)
+                            [specs[number].seed for number in batch], envs, record)
                 for batch in parts
             ]
             while ended < len(specs):

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import ray
 from ray.exceptions import RayError, RayTaskError
 
-from terl_rt.evaluation.play import batch_steps
+from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
 from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, batches, sigint_as_flag
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.scenario import Scenario
@@ -72,10 +72,10 @@ def _worker_policy(ref: _PolicyRef) -> OnnxPolicy:
     return _worker_policies[key]
 
 
-def batch_task(policy: _PolicyRef, scenario: Scenario, seeds: list[int], record: bool):
+def batch_task(policy: _PolicyRef, scenario: Scenario, seeds: list[int], record: bool, envs: int):
     """A batch of episodes as a Ray generator task: the messages of `batch_steps`, (kind,
     j, payload) with j the episode's index into `seeds`."""
-    yield from batch_steps(_worker_policy(policy), scenario, seeds, record)
+    yield from batch_steps(_worker_policy(policy), scenario, seeds, record, envs)
 
 
 class RayBackend:
@@ -85,12 +85,15 @@ class RayBackend:
     a local Ray instance with workers x threads CPUs (default: every CPU of this machine),
     shut down again by `close`. A process that has already called `ray.init` keeps its
     connection (and it stays open). workers: batches run at once (default: as many as the
-    cluster's CPUs hold); threads: onnxruntime intra-op threads of each batch's policy,
+    cluster's CPUs hold); envs: episodes a batch runs at once; threads: onnxruntime
+    intra-op threads of each batch's policy,
     and the CPUs each task asks Ray for (default 1). Raises BackendError when the cluster
     cannot be reached.
     """
 
-    def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None):
+    def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None,
+                 envs: int = BATCH_ENVS):
+        self.envs = check_envs(envs)
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
             raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
         self.threads = 1 if threads is None else threads
@@ -126,7 +129,7 @@ class RayBackend:
             for batch in itertools.islice(waiting, self.workers - len(streams)):
                 spec = specs[batch[0]]
                 seeds = [specs[number].seed for number in batch]
-                streams[self._task.remote(refs[spec.policy], spec.scenario, seeds, record)] = [batch, len(batch)]
+                streams[self._task.remote(refs[spec.policy], spec.scenario, seeds, record, self.envs)] = [batch, len(batch)]
 
         with sigint_as_flag() as interrupted:
             try:

@@ -13,6 +13,7 @@ import numpy as np
 
 from terl_rt.evaluation.backends import open_backend
 from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.rollout import Rollout
@@ -152,6 +153,8 @@ class BackendSpeed:
     """episodes / run_s."""
     per_episode: tuple[EpisodeMetrics, ...] = field(repr=False)
     """every episode's metrics, scenario by scenario (to check that backends agree)."""
+    envs: int = BATCH_ENVS
+    """episodes a batch ran at once (1: each alone, one policy call a step for its pursuers)."""
 
     def to_dict(self) -> dict:
         return {key: value for key, value in asdict(self).items() if key != "per_episode"}
@@ -159,29 +162,31 @@ class BackendSpeed:
 
 def backend_speeds(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, workers: int,
                    backends: Sequence[str] = ("local", "ray"), repeat: int = 1,
-                   max_steps: int | None = None) -> list[BackendSpeed]:
-    """Open each backend with `workers` workers (a Ray backend starts its own local
-    instance), then evaluate `policy` on each scenario in turn (`episodes` each, episode k
-    with seed + k) on one backend after the other, `repeat` rounds, so that a load that
-    drifts meets them alike; each backend's best round counts. Closing is not timed."""
+                   max_steps: int | None = None, envs: Sequence[int] = (BATCH_ENVS,)) -> list[BackendSpeed]:
+    """Open each backend with `workers` workers for each batch size of `envs` (a Ray
+    backend starts its own local instance), then evaluate `policy` on each scenario in turn
+    (`episodes` each, episode k with seed + k) on one after the other, `repeat` rounds, so
+    that a load that drifts meets them alike; each one's best round counts. Closing is not
+    timed. Rows come backend by backend, batch sizes within."""
+    runs = [(name, size) for name in backends for size in envs]
     with ExitStack() as stack:
         opened, start_s = {}, {}
-        for name in backends:
+        for run in runs:
             start = time.perf_counter()
-            opened[name] = stack.enter_context(open_backend(name, workers))
-            start_s[name] = time.perf_counter() - start
-        best = dict.fromkeys(backends, math.inf)
+            opened[run] = stack.enter_context(open_backend(run[0], workers, envs=run[1]))
+            start_s[run] = time.perf_counter() - start
+        best = dict.fromkeys(runs, math.inf)
         per_episode = {}
         for _ in range(repeat):
-            for name in backends:
+            for run in runs:
                 start = time.perf_counter()
-                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[name])
+                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[run])
                            for scenario in scenarios]
-                best[name] = min(best[name], time.perf_counter() - start)
-                per_episode[name] = tuple(m for result in results for m in result.per_episode)
+                best[run] = min(best[run], time.perf_counter() - start)
+                per_episode[run] = tuple(m for result in results for m in result.per_episode)
     total = episodes * len(scenarios)
     return [
-        BackendSpeed(backend=name, workers=workers, episodes=total, start_s=start_s[name], run_s=best[name],
-                     episodes_per_s=total / best[name], per_episode=per_episode[name])
-        for name in backends
+        BackendSpeed(backend=run[0], workers=workers, episodes=total, start_s=start_s[run], run_s=best[run],
+                     episodes_per_s=total / best[run], per_episode=per_episode[run], envs=run[1])
+        for run in runs
     ]
