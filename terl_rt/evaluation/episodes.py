@@ -11,6 +11,7 @@ whatever the number of workers or the batch size (terl_rt.evaluation.runs).
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -20,7 +21,7 @@ from pathlib import Path
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
-from terl_rt.evaluation.stats import episode_intervals
+from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
@@ -49,11 +50,31 @@ class ScenarioResult:
     wall_s: float
     """s: wall-clock time of the whole evaluation."""
     per_episode: tuple[EpisodeMetrics, ...]
+    step_s: float = 0.5
+    """s: the decision step (params.dt x params.substeps); the step limit lasts max_steps x step_s."""
+
+    @property
+    def limit_s(self) -> float:
+        """s: the step limit as a time, what a failed episode counts in `travel_time_s_limit_mean`."""
+        return self.max_steps * self.step_s
+
+    @property
+    def travel_time_s_success_mean(self) -> float:
+        """s: mean travel time of the successful episodes (nan without one)."""
+        times = travel_times(self.per_episode, self.limit_s)["travel_time_s_success"]
+        return float(times.mean()) if times.size else float("nan")
+
+    @property
+    def travel_time_s_limit_mean(self) -> float:
+        """s: mean travel time of every episode, each failure counted at the step limit (nan without episodes)."""
+        times = travel_times(self.per_episode, self.limit_s)["travel_time_s_limit"]
+        return float(times.mean()) if times.size else float("nan")
 
     def ci95(self) -> dict[str, tuple[float, float]]:
-        """95 % bootstrap intervals (fixed seed) of the success rate, mean travel time (s)
-        and mean collision ratio over the episodes (terl_rt.evaluation.stats)."""
-        return episode_intervals(self.per_episode)
+        """95 % intervals over the episodes (terl_rt.evaluation.stats.episode_intervals): the
+        success rate's exact (Clopper-Pearson) one, bootstrap ones (fixed seed) of the mean
+        travel times (s: as run, of successes, failures at the limit) and collision ratio."""
+        return episode_intervals(self.per_episode, self.limit_s)
 
     def episode_rows(self) -> list[dict]:
         """One row per episode: index, seed, outcome (success, too_few_pursuers or
@@ -85,14 +106,22 @@ class ScenarioResult:
             "success_rate": self.success_rate,
             "travel_time_s_mean": self.travel_time_s_mean,
             "travel_time_s_std": self.travel_time_s_std,
+            "travel_time_s_success_mean": _number(self.travel_time_s_success_mean),
+            "travel_time_s_limit_mean": _number(self.travel_time_s_limit_mean),
+            "limit_s": self.limit_s,
             "collision_ratio_mean": self.collision_ratio_mean,
             "steps_mean": self.steps_mean,
-            "ci95": {name: list(interval) for name, interval in self.ci95().items()},
+            "ci95": {name: [_number(bound) for bound in interval] for name, interval in self.ci95().items()},
             "wall_s": self.wall_s,
         }
         if per_episode:
             row["per_episode"] = self.episode_rows()
         return row
+
+
+def _number(value: float) -> float | None:
+    """`value` for JSON: None where it is NaN (a mean over no episode), which JSON cannot hold."""
+    return None if math.isnan(value) else value
 
 
 def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
@@ -162,4 +191,5 @@ def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[Episode
     return ScenarioResult(
         name=scenario.name, episodes=len(per_episode), seed=seed, max_steps=scenario.max_steps,
         **asdict(summarize(per_episode)), wall_s=wall_s, per_episode=tuple(per_episode),
+        step_s=scenario.params.dt * scenario.params.substeps,
     )
