@@ -159,18 +159,21 @@ def test_render_writes_png_and_gif(log, tmp_path):
         assert image.n_frames == 4  # steps 0, 2, 4, 6
 
 
-def test_bench_policy_reports_ms_per_step(files):
+def test_bench_policy_reports_latency_per_batch_size(files):
     result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11",
-                    "--steps", "5", "--json")
+                    "--batch", "1", "--batch", "30", "--calls", "3", "--json")
     assert result.exit_code == 0, result.output
-    out = json.loads(result.stdout)
-    assert out["steps"] == 5 and out["rows_mean"] == 11 and out["ms_per_step"] > 0
+    rows = json.loads(result.stdout)["rows"]
+    assert [row["batch"] for row in rows] == [1, 30]
+    assert all(0 < row["ms_p50"] <= row["ms_p99"] and row["calls"] == 3 for row in rows)
+    assert rows[1]["us_per_pursuer"] == pytest.approx(1e3 * rows[1]["ms_p50"] / 30)
+    assert rows[0]["mflop_per_row"] > 0 and rows[0]["matmul_share"] > 0
 
 
 def test_bench_policy_table(files):
-    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11", "--steps", "3")
+    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11", "--calls", "2")
     assert result.exit_code == 0, result.output
-    assert "ms per step" in result.stdout
+    assert "p99 (ms)" in result.stdout and "of matmul" in result.stdout
 
 
 def test_bench_eval_times_batch_sizes_side_by_side_with_the_same_episodes(files):

@@ -25,9 +25,10 @@ from terl_rt.cli.options import (
 from terl_rt.evaluation.backends import RayMissing
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.speed import (
+    POLICY_BATCHES,
     SCALING_PURSUERS,
     backend_speeds,
-    policy_speed,
+    policy_latencies,
     scaling_scenario,
     simulator_speed,
 )
@@ -88,24 +89,33 @@ def scaling(steps: int, as_json: bool) -> None:
 @bench.command("policy")
 @policy_option
 @scenario_option
-@steps_option
+@click.option(
+    "--batch", "batches", type=click.IntRange(min=1, max=100_000), multiple=True, default=POLICY_BATCHES,
+    show_default=True, help="Rows of a call to time (repeat for several): 1 is one robot's controller.",
+)
+@click.option("--calls", type=click.IntRange(min=1, max=100_000), default=100, show_default=True,
+              help="Timed calls at each batch size.")
 @seed_option
 @threads_option
 @json_option
-def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
-    """Policy speed: ms per step to choose the actions of all active pursuers (one
-    policy call on the real observations of a Simulator's world driven by the policy)."""
+def policy_command(policy_path, scenario, batches, calls: int, seed: int, threads, as_json: bool) -> None:
+    """Policy latency: p50 and p99 of one call at each --batch (rows of real observations
+    of --scenario), per pursuer, and the matrix-product rate it reaches as a share of the
+    machine's fp32 matmul rate (380 GFLOP/s on 2 threads; the FLOPs need onnx)."""
     policy = open_policy(policy_path, threads=threads)
-    result = policy_speed(policy, scenario, steps, seed=seed)
+    rows = policy_latencies(policy, scenario, batches, calls, seed=seed)
     if as_json:
-        click.echo(json.dumps({**result.to_dict(), "threads": threads}))
+        click.echo(json.dumps({"threads": threads, "rows": [row.to_dict() for row in rows]}))
         return
+    flops = rows[0].mflop_per_row
     click.echo(
-        f"{result.policy} on {result.scenario}: {result.pursuers} pursuers ({result.rows_mean:.1f} active on average), "
-        f"{result.steps} steps, threads {threads or 'default'}\n"
-        f"  {result.ms_per_step:.3f} ms per step (p50 {result.ms_p50:.3f}, p90 {result.ms_p90:.3f}), "
-        f"{result.us_per_pursuer:.1f} us per pursuer"
+        f"{policy.name} on {scenario.name}, threads {threads or 'default'}, {calls} calls a batch size"
+        + (f", {flops:.2f} MFLOP of matrix products a row" if flops else " (FLOPs need onnx: pip install -e '.[optimize]')")
     )
+    click.echo(f"{'batch':>6}{'p50 (ms)':>10}{'p99 (ms)':>10}{'us/pursuer':>12}{'GFLOP/s':>9}{'of matmul':>11}")
+    for row in rows:
+        rate = "" if row.gflops is None else f"{row.gflops:>9.1f}{100 * row.matmul_share:>10.0f}%"
+        click.echo(f"{row.batch:>6}{row.ms_p50:>10.3f}{row.ms_p99:>10.3f}{row.us_per_pursuer:>12.1f}{rate}")
 
 
 @bench.command("eval")

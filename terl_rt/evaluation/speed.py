@@ -14,6 +14,7 @@ import numpy as np
 from terl_rt.evaluation.backends import open_backend
 from terl_rt.evaluation.episodes import evaluate_policy
 from terl_rt.evaluation.play import BATCH_ENVS
+from terl_rt.policy.flops import MATMUL_GFLOPS, OnnxMissing, flops_per_row
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.rollout import Rollout
@@ -80,60 +81,65 @@ def scaling_scenario(pursuers: int) -> Scenario:
     )
 
 
+POLICY_BATCHES = (1, 80, 1600)
+"""Rows a policy call is timed at: one robot's controller, every pursuer of a large-80 step,
+and the pursuers of 20 large-80 episodes batched (terl_rt.evaluation.play.BATCH_ENVS)."""
+
+
 @dataclass(frozen=True)
-class PolicySpeed:
-    """Time to choose the actions of all active pursuers: one policy call per step."""
+class PolicyLatency:
+    """Latency of one policy call of `batch` rows (real observations), over `calls` calls."""
 
     policy: str
     scenario: str
-    pursuers: int
-    steps: int
-    """timed steps (policy calls)."""
-    rows_mean: float
-    """mean active pursuers per call (the batch the policy saw)."""
-    ms_per_step: float
-    """milliseconds per step: the policy's actions for every active pursuer, in one call."""
+    batch: int
+    """rows of each call."""
+    calls: int
     ms_p50: float
-    ms_p90: float
+    ms_p99: float
     us_per_pursuer: float
-    """microseconds per pursuer row (ms_per_step / rows_mean)."""
-    resets: int
-    """episodes restarted during the run (not timed)."""
+    """microseconds per row at the median (ms_p50 / batch)."""
+    mflop_per_row: float | None
+    """MFLOP of matrix products a row (terl_rt.policy.flops); None without onnx."""
+    gflops: float | None
+    """GFLOP/s of matrix products at the median call."""
+    matmul_share: float | None
+    """gflops over MATMUL_GFLOPS, the machine's fp32 matrix-multiply rate."""
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicySpeed:
-    """Time `steps` action choices (after `warmup` untimed ones) on real observations:
-    the world of `Simulator(scenario, seed)` driven by the policy itself, restarted
-    untimed when an episode ends."""
-    rollout = Rollout(World(scenario, num_envs=1, seed=seed))
-    times, rows, resets = [], [], 0
-    for k in range(warmup + steps):
-        turn = rollout.turn()
-        resets += len(turn.restarted)
-        start = time.perf_counter()
-        actions = policy.act(turn.observation.rows(turn.rows))
-        elapsed = time.perf_counter() - start
-        if k >= warmup:
-            times.append(elapsed)
-            rows.append(len(turn.rows))
-        rollout.step(actions)
-    ms = 1e3 * np.array(times)
-    rows_mean = float(np.mean(rows))
-    return PolicySpeed(
-        policy=policy.name,
-        scenario=scenario.name,
-        pursuers=scenario.pursuers,
-        steps=steps,
-        rows_mean=rows_mean,
-        ms_per_step=float(ms.mean()),
-        ms_p50=float(np.percentile(ms, 50)),
-        ms_p90=float(np.percentile(ms, 90)),
-        us_per_pursuer=float(1e3 * ms.mean() / rows_mean),
-        resets=resets,
-    )
+def policy_latencies(policy, scenario: Scenario, batches: Sequence[int] = POLICY_BATCHES, calls: int = 100,
+                     seed: int = 0) -> list[PolicyLatency]:
+    """Time `calls` policy calls at each batch size of `batches` (rows of the observations of
+    `World(scenario, ceil(max(batches) / N), seed)` after reset), the sizes taken in turn so
+    that a load that drifts meets them alike, one untimed call of each first; the FLOPs a row
+    are counted where onnx is installed."""
+    world = World(scenario, num_envs=math.ceil(max(*batches, 2) / scenario.pursuers), seed=seed)
+    observation = world.reset()
+    inputs = {batch: observation.rows(np.arange(batch)) for batch in batches}
+    try:  # every row has the same slots, so the same FLOPs
+        mflop = flops_per_row(policy, observation.rows(np.arange(2))) / 1e6
+    except OnnxMissing:
+        mflop = None
+    times: dict[int, list[float]] = {batch: [] for batch in batches}
+    for call in range(calls + 1):
+        for batch in batches:
+            start = time.perf_counter()
+            policy.evaluate(inputs[batch])
+            if call:
+                times[batch].append(time.perf_counter() - start)
+    rows = []
+    for batch in batches:
+        p50, p99 = (float(v) for v in 1e3 * np.percentile(times[batch], [50, 99]))
+        gflops = None if mflop is None else mflop * batch / p50 / 1e3
+        rows.append(PolicyLatency(
+            policy=policy.name, scenario=scenario.name, batch=batch, calls=calls, ms_p50=p50, ms_p99=p99,
+            us_per_pursuer=1e3 * p50 / batch, mflop_per_row=mflop, gflops=gflops,
+            matmul_share=None if gflops is None else gflops / MATMUL_GFLOPS,
+        ))
+    return rows
 
 
 @dataclass(frozen=True)
