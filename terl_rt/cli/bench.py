@@ -107,14 +107,16 @@ def policy_command(policy_path, scenario, batches, calls: int, seed: int, thread
     if as_json:
         click.echo(json.dumps({"threads": threads, "rows": [row.to_dict() for row in rows]}))
         return
-    flops = rows[0].mflop_per_row
     click.echo(
         f"{policy.name} on {scenario.name}, threads {threads or 'default'}, {calls} calls a batch size"
-        + (f", {flops:.2f} MFLOP of matrix products a row" if flops else " (FLOPs need onnx: pip install -e '.[optimize]')")
+        + ("" if rows[0].mflop_per_row else " (FLOPs need onnx: pip install -e '.[optimize]')")
     )
-    click.echo(f"{'batch':>6}{'p50 (ms)':>10}{'p99 (ms)':>10}{'us/pursuer':>12}{'GFLOP/s':>9}{'of matmul':>11}")
+    click.echo(f"{'batch':>6}{'p50 (ms)':>10}{'p99 (ms)':>10}{'us/pursuer':>12}{'MFLOP/row':>11}{'GFLOP/s':>9}"
+               f"{'of matmul':>11}")
     for row in rows:
-        rate = "" if row.gflops is None else f"{row.gflops:>9.1f}{100 * row.matmul_share:>10.0f}%"
+        rate = "" if row.gflops is None else (
+            f"{row.mflop_per_row:>11.2f}{row.gflops:>9.1f}{100 * row.matmul_share:>10.0f}%"
+        )
         click.echo(f"{row.batch:>6}{row.ms_p50:>10.3f}{row.ms_p99:>10.3f}{row.us_per_pursuer:>12.1f}{rate}")
 
 

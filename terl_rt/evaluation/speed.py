@@ -115,14 +115,14 @@ def policy_latencies(policy, scenario: Scenario, batches: Sequence[int] = POLICY
     """Time `calls` policy calls at each batch size of `batches` (rows of the observations of
     `World(scenario, ceil(max(batches) / N), seed)` after reset), the sizes taken in turn so
     that a load that drifts meets them alike, one untimed call of each first; the FLOPs a row
-    are counted where onnx is installed."""
-    world = World(scenario, num_envs=math.ceil(max(*batches, 2) / scenario.pursuers), seed=seed)
+    of each batch are counted where onnx is installed."""
+    world = World(scenario, num_envs=math.ceil(max(batches) / scenario.pursuers), seed=seed)
     observation = world.reset()
     inputs = {batch: observation.rows(np.arange(batch)) for batch in batches}
-    try:  # every row has the same slots, so the same FLOPs
-        mflop = flops_per_row(policy, observation.rows(np.arange(2))) / 1e6
+    try:
+        mflop = {batch: flops_per_row(policy, inputs[batch]) / 1e6 for batch in batches}
     except OnnxMissing:
-        mflop = None
+        mflop = dict.fromkeys(batches)
     times: dict[int, list[float]] = {batch: [] for batch in batches}
     for call in range(calls + 1):
         for batch in batches:
@@ -133,10 +133,10 @@ def policy_latencies(policy, scenario: Scenario, batches: Sequence[int] = POLICY
     rows = []
     for batch in batches:
         p50, p99 = (float(v) for v in 1e3 * np.percentile(times[batch], [50, 99]))
-        gflops = None if mflop is None else mflop * batch / p50 / 1e3
+        gflops = None if mflop[batch] is None else mflop[batch] * batch / p50  # MFLOP / ms
         rows.append(PolicyLatency(
             policy=policy.name, scenario=scenario.name, batch=batch, calls=calls, ms_p50=p50, ms_p99=p99,
-            us_per_pursuer=1e3 * p50 / batch, mflop_per_row=mflop, gflops=gflops,
+            us_per_pursuer=1e3 * p50 / batch, mflop_per_row=mflop[batch], gflops=gflops,
             matmul_share=None if gflops is None else gflops / MATMUL_GFLOPS,
         ))
     return rows
