@@ -145,8 +145,10 @@ def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, 
     """Evaluation speed by batch size, side by side: the same evaluation (scenario by
     scenario, as `terl-rt eval` runs it, on the local backend) with each --envs in turn,
     --repeat rounds, so all see the same load. Prints the best round's time, episodes per
-    second, each one's speed-up over the first --envs, and whether every episode came out
-    the same. Every worker runs its policy on one onnxruntime thread."""
+    second, each one's speed-up over the first --envs, the CPU time of the run (this process
+    and its workers; on a loaded machine the better measure of the work) and its ratio, and
+    whether every episode came out the same. Every worker runs its policy on one onnxruntime
+    thread."""
     policy = open_policy(policy_path, threads=1)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = backend_speeds(policy, scenarios, episodes, seed, workers, backends=("local",), repeat=repeat,
@@ -163,10 +165,11 @@ def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, 
         f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}, "
         f"{workers} worker(s)" + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
     )
-    click.echo(f"{'envs':>6}{'episodes':>10}{'run (s)':>10}{'episodes/s':>12}{'speed-up':>10}")
+    click.echo(f"{'envs':>6}{'episodes':>10}{'run (s)':>10}{'episodes/s':>12}{'speed-up':>10}{'CPU (s)':>10}"
+               f"{'CPU ratio':>11}")
     for row in rows:
         click.echo(f"{row.envs:>6}{row.episodes:>10}{row.run_s:>10.1f}{row.episodes_per_s:>12.2f}"
-                   f"{rows[0].run_s / row.run_s:>9.2f}x")
+                   f"{rows[0].run_s / row.run_s:>9.2f}x{row.cpu_s:>10.1f}{rows[0].cpu_s / row.cpu_s:>10.2f}x")
     click.echo(f"every episode the same at every batch size: {'yes' if identical else 'NO'}")
 
 

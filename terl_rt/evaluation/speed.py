@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import resource
 import time
 from collections.abc import Sequence
 from contextlib import ExitStack
@@ -161,6 +162,9 @@ class BackendSpeed:
     """every episode's metrics, scenario by scenario (to check that backends agree)."""
     envs: int = BATCH_ENVS
     """episodes a batch ran at once (1: each alone, one policy call a step for its pursuers)."""
+    cpu_s: float = math.nan
+    """s: CPU time of the best run, this process and the worker processes it waited for (a
+    Ray backend's workers are not counted); less sensitive than run_s to a loaded machine."""
 
     def to_dict(self) -> dict:
         return {key: value for key, value in asdict(self).items() if key != "per_episode"}
@@ -181,18 +185,24 @@ def backend_speeds(policy, scenarios: Sequence[Scenario], episodes: int, seed: i
             start = time.perf_counter()
             opened[run] = stack.enter_context(open_backend(run[0], workers, envs=run[1]))
             start_s[run] = time.perf_counter() - start
-        best = dict.fromkeys(runs, math.inf)
+        best = dict.fromkeys(runs, (math.inf, math.nan))
         per_episode = {}
         for _ in range(repeat):
             for run in runs:
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), _cpu_s()
                 results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[run])
                            for scenario in scenarios]
-                best[run] = min(best[run], time.perf_counter() - start)
+                best[run] = min(best[run], (time.perf_counter() - start, _cpu_s() - cpu))
                 per_episode[run] = tuple(m for result in results for m in result.per_episode)
     total = episodes * len(scenarios)
     return [
-        BackendSpeed(backend=run[0], workers=workers, episodes=total, start_s=start_s[run], run_s=best[run],
-                     episodes_per_s=total / best[run], per_episode=per_episode[run], envs=run[1])
+        BackendSpeed(backend=run[0], workers=workers, episodes=total, start_s=start_s[run], run_s=best[run][0],
+                     episodes_per_s=total / best[run][0], per_episode=per_episode[run], envs=run[1], cpu_s=best[run][1])
         for run in runs
     ]
+
+
+def _cpu_s() -> float:
+    """s: CPU time (user + system) of this process and of the children it has waited for."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime

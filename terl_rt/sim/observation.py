@@ -64,9 +64,9 @@ class Observation:
         """The ONNX contract inputs by name (INPUT_NAMES, the names of their fields here)."""
         return {name: getattr(self, name) for name in INPUT_NAMES}
 
-    def envs(self, index: np.ndarray) -> Observation:
-        """The environments at `index` [K] int of observations with leading shape [B, N]:
-        leading shape [K, N]."""
+    def take(self, index: np.ndarray) -> Observation:
+        """The entries at `index` [K] int of the first leading axis: the environments of
+        observations with leading shape [B, N] ([K, N] out), the rows of [R] ones ([K] out)."""
         return Observation(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
 
     def rows(self, index: np.ndarray) -> Observation:

@@ -117,7 +117,7 @@ class Rollout:
         if len(restarted) < len(ended):
             kept = np.setdiff1d(np.arange(world.num_envs), ended[len(restarted):])
             world.keep(kept)
-            self._observation = self._observation.envs(kept)
+            self._observation = self._observation.take(kept)
             self._episodes = self._episodes[kept]
             restarted = np.searchsorted(kept, restarted)
         return restarted
