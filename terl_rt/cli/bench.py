@@ -153,18 +153,9 @@ def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, 
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = backend_speeds(policy, scenarios, episodes, seed, workers, backends=("local",), repeat=repeat,
                           max_steps=max_steps, envs=env_counts)
-    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    identical = _echo_speeds(policy, scenarios, episodes, seed, max_steps, repeat, rows, as_json, f", {workers} worker(s)")
     if as_json:
-        click.echo(json.dumps({
-            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
-            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
-            "identical": identical,
-        }))
         return
-    click.echo(
-        f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}, "
-        f"{workers} worker(s)" + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
-    )
     click.echo(f"{'envs':>6}{'episodes':>10}{'run (s)':>10}{'episodes/s':>12}{'speed-up':>10}{'CPU (s)':>10}"
                f"{'CPU ratio':>11}")
     for row in rows:
@@ -207,18 +198,9 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
                 rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)
             except RayMissing as error:
                 raise BadInput(str(error)) from None
-    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    identical = _echo_speeds(policy, scenarios, episodes, seed, max_steps, repeat, rows, as_json)
     if as_json:
-        click.echo(json.dumps({
-            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
-            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
-            "identical": identical,
-        }))
         return
-    click.echo(
-        f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}"
-        + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
-    )
     click.echo(f"{'backend':<9}{'workers':>8}{'episodes':>10}{'start (s)':>11}{'run (s)':>10}{'episodes/s':>12}{'ray/local':>11}")
     for local, ray in zip(rows[::2], rows[1::2]):
         for row in (local, ray):
@@ -226,3 +208,22 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
             click.echo(f"{row.backend:<9}{row.workers:>8}{row.episodes:>10}{row.start_s:>11.1f}{row.run_s:>10.1f}"
                        f"{row.episodes_per_s:>12.2f}{ratio:>11}")
     click.echo(f"every episode the same on every backend and worker count: {'yes' if identical else 'NO'}")
+
+
+def _echo_speeds(policy, scenarios, episodes: int, seed: int, max_steps, repeat: int, rows, as_json: bool,
+                 setting: str = "") -> bool:
+    """Print the JSON object of timed evaluations `rows` (BackendSpeed), or the heading line of
+    their table (`setting` added to it); returns whether every row gave the same episodes."""
+    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    if as_json:
+        click.echo(json.dumps({
+            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
+            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
+            "identical": identical,
+        }))
+    else:
+        click.echo(
+            f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, "
+            f"seed {seed}{setting}" + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
+        )
+    return identical
