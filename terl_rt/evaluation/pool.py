@@ -22,7 +22,6 @@ from multiprocessing import get_context
 
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
 from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, sigint_as_flag
-from terl_rt.logs.format import StepRecord
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
