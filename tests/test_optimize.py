@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from onnx_models import write_test_policy
@@ -12,6 +13,7 @@ from terl_rt.cli.main import cli
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.policy.optimize import VariantCheck, check_variant, record_observations
 from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.world import World
 
 pytest.importorskip("onnx")
 
@@ -47,3 +49,13 @@ def test_optimize_writes_nothing_when_no_variant_passes(policy, tmp_path):
     assert result.exit_code == 1, result.output
     (variant,) = json.loads(result.stdout)["variants"]
     assert variant["name"] == "int8-dynamic" and not variant["passed"] and not out.exists()
+
+
+def test_flops_count_every_matrix_product_of_a_row(policy):
+    # The linear test policy: pooled [R, 23] @ W [23, 9], and evaders [R, E, 7] @ v [7, 1] for
+    # the target weights: 2 * 23 * 9 + 2 * E * 7 FLOPs a row.
+    from terl_rt.policy.flops import flops_per_row
+
+    scenario = Scenario.preset("small-11")
+    observation = World(scenario, num_envs=1, seed=0).reset().rows(np.arange(11))
+    assert flops_per_row(policy, observation) == 2 * 23 * 9 + 2 * scenario.evader_slots * 7
