@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from onnx_models import write_test_policy
 
 from terl_rt.cli.main import cli
+from terl_rt.policy import optimize
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.policy.optimize import VariantCheck, check_variant, record_observations
 from terl_rt.sim.scenario import Scenario
@@ -42,13 +43,17 @@ def test_a_variant_that_decides_otherwise_is_not_offered(policy, tmp_path):
     assert (check.passed, check.failed_check) == (False, "decisions") and check.agreement < 0.995
 
 
-def test_optimize_writes_nothing_when_no_variant_passes(policy, tmp_path):
+def test_optimize_writes_nothing_when_no_variant_passes(policy, tmp_path, monkeypatch):
+    # A "fused" variant that is another policy (other weights, no target weights) decides otherwise.
+    monkeypatch.setitem(optimize.VARIANTS, "fused", lambda source, target, recorded: write_test_policy(
+        target, seed=3, target_weights=False))
     out = tmp_path / "fast.onnx"
-    result = CliRunner().invoke(cli, ["optimize", str(policy.path), "-o", str(out), "--variant", "int8-dynamic",
+    result = CliRunner().invoke(cli, ["optimize", str(policy.path), "-o", str(out), "--variant", "fused",
                                       "--scenario", "small-11", "--episodes", "1", "--json"])
     assert result.exit_code == 1, result.output
     (variant,) = json.loads(result.stdout)["variants"]
-    assert variant["name"] == "int8-dynamic" and not variant["passed"] and not out.exists()
+    assert (variant["name"], variant["passed"], variant["failed_check"]) == ("fused", False, "decisions")
+    assert not out.exists()
 
 
 def test_flops_count_every_matrix_product_of_a_row(policy):

@@ -10,7 +10,8 @@ it, stopping at the first check it fails:
    the recorded observations' rows (`record_observations`: the float policy's own episodes);
 4. suite: on every scenario, its success rate lies inside the float policy's exact 95 %
    interval over the same episodes (terl_rt.evaluation.episodes.evaluate_policy);
-5. faster: its median call on the recorded rows of the largest scenario beats the float's.
+5. faster: its median call on the recorded rows of the largest scenario takes at most
+   1 / MIN_SPEEDUP of the float's.
 
 A variant that fails is not offered. Needs the `optimize` extra (onnx, for onnxruntime's
 quantisation and transformer tools).
@@ -37,6 +38,9 @@ from terl_rt.sim.world import World
 
 DECISION_AGREEMENT = 0.995
 """the share of recorded rows on which a variant must choose the float graph's action."""
+MIN_SPEEDUP = 1.1
+"""how much faster a variant's median call must be than the float's to be offered: beyond
+the timing noise of one sitting (a copy of the float graph can read 1.05x)."""
 
 
 def _fused(source: Path, target: Path, calibration: Sequence[Observation]) -> None:
@@ -168,9 +172,9 @@ def check_variant(name: str, variant: OnnxPolicy, policy: OnnxPolicy, recorded: 
                                 f"[{low:.2f}, {high:.2f}] over {episodes} episodes", agreement)
     largest = max(recorded, key=lambda observation: observation.ego.shape[0])
     float_s, variant_s = _median_call_s(policy, variant, largest)
-    if variant_s >= float_s:
+    if float_s < MIN_SPEEDUP * variant_s:
         return VariantCheck(name, False, "faster", f"median call {1e3 * variant_s:.2f} ms against the float's "
-                            f"{1e3 * float_s:.2f} ms", agreement, float_s / variant_s)
+                            f"{1e3 * float_s:.2f} ms (needs {MIN_SPEEDUP:g}x)", agreement, float_s / variant_s)
     return VariantCheck(name, True, None, f"same action on {100 * agreement:.2f} % of rows, "
                         f"{float_s / variant_s:.2f}x faster a call", agreement, float_s / variant_s, variant.model)
 
