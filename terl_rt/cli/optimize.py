@@ -44,7 +44,7 @@ def optimize_command(ctx, policy_path, out, variants, scenario_names, suite, epi
     float graph: rows decided alike whatever rows share a call, the same greedy action on
     at least 99.5 % of observations recorded in the policy's own episodes, each
     scenario's success rate inside the float's exact 95 % interval (--episodes each, the
-    paper suite unless --scenario or --suite), and a faster call. The fastest variant that
+    paper suite unless --scenario or --suite), and a call at least 1.1x faster. The fastest variant that
     passes is written to --out; a variant that fails is not offered (exit status 1 when
     none passes)."""
     policy = open_policy(policy_path, threads=threads or 1)
