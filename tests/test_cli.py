@@ -18,7 +18,8 @@ from terl_rt.evaluation.episodes import RESULTS_SCHEMA
 
 ROW_KEYS = {
     "name", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "travel_time_s_std",
-    "collision_ratio_mean", "steps_mean", "ci95", "wall_s", "per_episode",
+    "collision_ratio_mean", "steps_mean", "ci95", "wall_s", "per_episode", "travel_time_s_success_mean",
+    "travel_time_s_limit_mean", "limit_s",
 }
 
 
@@ -53,9 +54,8 @@ def test_eval_prints_a_table_per_scenario(files):
                     "--episodes", "2", "--max-steps", "5")
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()
-    assert "travel (s): mean ± std" in lines[1] and "success" in lines[1]
+    assert "travel, successes (s)" in lines[1] and "travel, failures at limit (s)" in lines[1] and "success" in lines[1]
     assert lines[2].split()[:2] == ["small-11", "2"] and lines[3].split()[:2] == ["small-15", "2"]
-    assert "±" in lines[2]
 
 
 def test_eval_json_is_one_object_with_the_documented_keys(files):
@@ -176,18 +176,30 @@ def test_render_writes_png_and_gif(log, tmp_path):
         assert image.n_frames == 4  # steps 0, 2, 4, 6
 
 
-def test_bench_policy_reports_ms_per_step(files):
+def test_bench_policy_reports_latency_per_batch_size(files):
     result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11",
-                    "--steps", "5", "--json")
+                    "--batch", "1", "--batch", "30", "--calls", "3", "--json")
     assert result.exit_code == 0, result.output
-    out = json.loads(result.stdout)
-    assert out["steps"] == 5 and out["rows_mean"] == 11 and out["ms_per_step"] > 0
+    rows = json.loads(result.stdout)["rows"]
+    assert [row["batch"] for row in rows] == [1, 30]
+    assert all(0 < row["ms_p50"] <= row["ms_p99"] and row["calls"] == 3 for row in rows)
+    assert rows[1]["us_per_pursuer"] == pytest.approx(1e3 * rows[1]["ms_p50"] / 30)
+    assert rows[0]["mflop_per_row"] > 0 and rows[0]["matmul_share"] > 0
 
 
 def test_bench_policy_table(files):
-    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11", "--steps", "3")
+    result = invoke("bench", "policy", "--policy", files["policy"], "--scenario", "small-11", "--calls", "2")
     assert result.exit_code == 0, result.output
-    assert "ms per step" in result.stdout
+    assert "p99 (ms)" in result.stdout and "of matmul" in result.stdout
+
+
+def test_bench_eval_times_batch_sizes_side_by_side_with_the_same_episodes(files):
+    result = invoke("bench", "eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "3",
+                    "--max-steps", "4", "--workers", "1", "--envs", "1", "--envs", "3", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert [row["envs"] for row in out["rows"]] == [1, 3] and out["identical"]
+    assert all(row["episodes"] == 3 and row["run_s"] > 0 for row in out["rows"])
 
 
 def _bad_inputs(files, log) -> dict[str, tuple]:

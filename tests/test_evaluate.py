@@ -129,7 +129,7 @@ def test_bad_arguments_are_refused(policy, kwargs, error):
         evaluate(policy, capture_scenario(3), **arguments)
 
 
-def test_interrupted_evaluation_keeps_the_finished_episodes_logged(policy, tmp_path):
+def test_interrupted_evaluation_keeps_every_step_taken_logged(policy, tmp_path):
     log = tmp_path / "interrupted.mcap"
 
     def interrupt(index, m):
@@ -140,7 +140,9 @@ def test_interrupted_evaluation_keeps_the_finished_episodes_logged(policy, tmp_p
         evaluate(policy, capture_scenario(4), episodes=5, seed=0, log_path=log, progress=interrupt)
     reader = EpisodeLogReader(log)
     assert not reader.truncated  # closed on the way out
-    assert [e.complete for e in reader.episodes] == [True, True]
+    # The 5 episodes ran together: 0 and 1 ended, 2-4 keep the steps they took, unended.
+    assert [e.complete for e in reader.episodes] == [True, True, False, False, False]
+    assert all(e.steps > 0 for e in reader.episodes)
 
 
 def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, tmp_path):

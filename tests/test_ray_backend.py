@@ -91,27 +91,27 @@ def test_the_policy_reaches_the_workers_without_its_file(tmp_path, backend):
             == evaluate_policy(policy, scenario, 2, 0, max_steps=10).per_episode)
 
 
-def test_a_worker_killed_mid_episode_is_run_again_and_counted_once(policy, backend, tmp_path):
+def test_a_worker_killed_mid_batch_is_run_again_and_counted_once(policy, backend, tmp_path):
     log = tmp_path / "killed-worker.mcap"
     killed: list[str] = []
 
-    def kill_one_episode_worker() -> None:
+    def kill_one_batch_worker() -> None:
         deadline = time.monotonic() + 60
         while (not log.exists() or log.stat().st_size < 100_000) and time.monotonic() < deadline:
             time.sleep(0.01)
-        running = [pid for pid in descendants(os.getpid()) if cmdline(pid).startswith("ray::episode_task")]
+        running = [pid for pid in descendants(os.getpid()) if cmdline(pid).startswith("ray::batch_task")]
         if running:
             os.kill(running[0], signal.SIGKILL)
             killed.append(cmdline(running[0]) or "killed")
 
-    killer = threading.Thread(target=kill_one_episode_worker)
+    killer = threading.Thread(target=kill_one_batch_worker)
     killer.start()
     scenario = Scenario.preset("small-11")
     try:
         on_ray = evaluate_policy(policy, scenario, 4, 0, max_steps=150, log_path=log, backend=backend)
     finally:
         killer.join()
-    assert killed, "no episode was running when the log had grown"
+    assert killed, "no batch was running when the log had grown"
     local = evaluate_policy(policy, scenario, 4, 0, max_steps=150, log_path=tmp_path / "local.mcap")
     assert on_ray.per_episode == local.per_episode
     assert log.read_bytes() == (tmp_path / "local.mcap").read_bytes()  # no step twice, none lost
@@ -166,7 +166,7 @@ def test_sigkill_of_a_ray_run_keeps_the_streamed_steps_and_ends_its_workers(poli
     try:
         wait_for_log(process, log)
         ray_processes = descendants(process.pid)
-        assert any(cmdline(pid).startswith("ray::episode_task") for pid in ray_processes)
+        assert any(cmdline(pid).startswith("ray::batch_task") for pid in ray_processes)
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
         assert_all_end({pid for pid in ray_processes if not cmdline(pid).startswith(RAY_AGENTS)}, limit_s=10)

@@ -16,7 +16,15 @@ from terl_rt.cli.eval import CSV_COLUMNS
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import ScenarioResult, episode_outcome
 from terl_rt.policy.onnx_policy import OnnxPolicy
-from terl_rt.evaluation.stats import bootstrap_interval, episode_intervals, mean_intervals
+from terl_rt.evaluation.stats import (
+    CI_METRICS,
+    bootstrap_interval,
+    clopper_pearson,
+    episode_intervals,
+    mean_intervals,
+    success_interval,
+    travel_times,
+)
 from terl_rt.sim.metrics import EpisodeMetrics
 
 
@@ -47,14 +55,36 @@ def test_bootstrap_interval_is_deterministic_and_brackets_the_mean():
     assert all(np.isnan(bootstrap_interval([])))
 
 
-def test_episode_intervals_cover_success_travel_time_and_collisions():
+def test_episode_intervals_cover_success_travel_times_and_collisions():
     episodes = [metrics(True, 100), metrics(False, 1000, collided=8), metrics(True, 120, collided=1)] * 4
-    intervals = episode_intervals(episodes)
-    assert set(intervals) == {"success_rate", "travel_time_s", "collision_ratio"}
+    intervals = episode_intervals(episodes, limit_s=500.0)
+    assert set(intervals) == set(CI_METRICS)
     low, high = intervals["success_rate"]
     assert 0.0 <= low < 2 / 3 < high <= 1.0
-    groups = mean_intervals([episodes, episodes[:3]])
+    groups = mean_intervals([episodes, episodes[:3]], [500.0, 500.0])
     assert set(groups) == set(intervals)
+
+
+def test_success_interval_is_exact_for_all_successes():
+    # Clopper-Pearson at k = n: the lower bound solves p^n = 0.025, so 0.025^(1/20) = 0.8316 at n = 20.
+    assert success_interval(20, 20) == pytest.approx((0.025 ** (1 / 20), 1.0), abs=1e-9)
+    assert success_interval(1000, 1000)[0] == pytest.approx(0.025 ** (1 / 1000), abs=1e-9)  # 0.9963
+    assert success_interval(0, 20) == pytest.approx((0.0, 1 - 0.025 ** (1 / 20)), abs=1e-9)
+
+
+@pytest.mark.parametrize("successes, trials", [(0, 7), (3, 20), (17, 20), (500, 1000), (999, 1000)])
+def test_clopper_pearson_without_scipy_is_scipys_interval(successes, trials):
+    binomtest = pytest.importorskip("scipy.stats").binomtest
+    exact = binomtest(successes, trials).proportion_ci(0.95, method="exact")
+    assert clopper_pearson(successes, trials) == pytest.approx((exact.low, exact.high), abs=1e-9)
+
+
+def test_travel_time_over_successes_and_with_failures_at_the_limit():
+    # successes at 50 s and 60 s, a failure after 20 s: successes 55 s; failures at the 500 s limit (50 + 60 + 500) / 3.
+    times = travel_times([metrics(True, 100), metrics(True, 120), metrics(False, 40, collided=8)], limit_s=500.0)
+    assert times["travel_time_s_success"].tolist() == [50.0, 60.0]
+    assert times["travel_time_s_limit"].mean() == pytest.approx(610 / 3)
+    assert times["travel_time_s"].tolist() == [50.0, 60.0, 20.0]
 
 
 def test_outcome_names_how_an_episode_ended():
@@ -78,7 +108,7 @@ def test_eval_json_carries_every_episode_the_step_limit_and_versions(policy):
             "return",
         }
         assert episode["outcome"] in ("success", "step_limit", "too_few_pursuers")
-    assert set(row["ci95"]) == {"success_rate", "travel_time_s", "collision_ratio"}
+    assert set(row["ci95"]) == set(CI_METRICS)
     low, high = row["ci95"]["travel_time_s"]
     assert low <= row["travel_time_s_mean"] <= high
 
@@ -113,8 +143,9 @@ def test_eval_table_shows_the_intervals(policy):
     result = invoke("eval", "--policy", policy, "--scenario", "small-11", "--episodes", "2", "--max-steps", "4")
     assert result.exit_code == 0, result.output
     header, row = result.stdout.splitlines()[1:3]
-    assert header.count("95 % CI") == 3
-    assert row.count("[") == 3
+    # success, travel over successes, travel with failures at the limit, collision ratio
+    assert header.count("95 % CI") == 4
+    assert row.count("[") == 4
 
 
 def test_the_progress_bar_shows_an_eta(policy, monkeypatch):
@@ -151,9 +182,9 @@ def test_report_tables_show_intervals_per_preset_and_per_group():
     results = [result("small-11"), result("small-15")]
     text = render_markdown(results, {"name": "p", "sha256": "0" * 64}, "terl-rt report", datetime.now(timezone.utc))
     row = next(line for line in text.splitlines() if line.startswith("| small-11 |"))
-    assert row.count("[") == 3
+    assert row.count("[") == 5  # success, travel as run, over successes, with failures at the limit, collisions
     group_row = next(line for line in text.split("## Per scale group")[1].splitlines() if line.startswith("| small |"))
-    assert group_row.count("[") == 3
+    assert group_row.count("[") == 5  # and travel of every episode as it ran
     (small,) = group_summaries(results)
     low, high = small.ci95["success_rate"]
     assert low < 0.75 < high

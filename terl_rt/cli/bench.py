@@ -24,10 +24,12 @@ from terl_rt.cli.options import (
     threads_option,
 )
 from terl_rt.evaluation.backends import RayMissing
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.speed import (
+    POLICY_BATCHES,
     SCALING_PURSUERS,
     backend_speeds,
-    policy_speed,
+    policy_latencies,
     scaling_scenario,
     simulator_speed,
 )
@@ -106,13 +108,19 @@ def scaling(steps: int, as_json: bool) -> None:
 @bench.command("policy")
 @policy_option
 @scenario_option
-@steps_option
+@click.option(
+    "--batch", "batches", type=IntRange(min=1, max=100_000), multiple=True, default=POLICY_BATCHES,
+    show_default=True, help="Rows of a call to time (repeat for several): 1 is one robot's controller.",
+)
+@click.option("--calls", type=IntRange(min=1, max=100_000), default=100, show_default=True,
+              help="Timed calls at each batch size.")
 @seed_option
 @threads_option
 @json_option
-def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_json: bool) -> None:
-    """Policy speed: ms per step to choose the actions of all active pursuers (one
-    policy call on the real observations of a Simulator's world driven by the policy).
+def policy_command(policy_path, scenario, batches, calls: int, seed: int, threads, as_json: bool) -> None:
+    """Policy latency: p50 and p99 of one call at each --batch (rows of real observations
+    of --scenario), per pursuer, and the matrix-product rate it reaches as a share of the
+    machine's fp32 matmul rate (380 GFLOP/s on 2 threads; the FLOPs need onnx).
 
     \b
     Examples:
@@ -120,16 +128,71 @@ def policy_command(policy_path, scenario, steps: int, seed: int, threads, as_jso
       terl-rt bench policy --policy my.onnx --scenario large-80 --threads 1
     """
     policy = open_policy(policy_path, threads=threads)
-    result = policy_speed(policy, scenario, steps, seed=seed)
+    rows = policy_latencies(policy, scenario, batches, calls, seed=seed)
     if as_json:
-        click.echo(json.dumps({**result.to_dict(), "threads": threads}))
+        click.echo(json.dumps({"threads": threads, "rows": [row.to_dict() for row in rows]}))
         return
     click.echo(
-        f"{result.policy} on {result.scenario}: {result.pursuers} pursuers ({result.rows_mean:.1f} active on average), "
-        f"{result.steps} steps, threads {threads or 'default'}\n"
-        f"  {result.ms_per_step:.3f} ms per step (p50 {result.ms_p50:.3f}, p90 {result.ms_p90:.3f}), "
-        f"{result.us_per_pursuer:.1f} us per pursuer"
+        f"{policy.name} on {scenario.name}, threads {threads or 'default'}, {calls} calls a batch size"
+        + ("" if rows[0].mflop_per_row else " (FLOPs need onnx: pip install -e '.[optimize]')")
     )
+    click.echo(f"{'batch':>6}{'p50 (ms)':>10}{'p99 (ms)':>10}{'us/pursuer':>12}{'MFLOP/row':>11}{'GFLOP/s':>9}"
+               f"{'of matmul':>11}")
+    for row in rows:
+        rate = "" if row.gflops is None else (
+            f"{row.mflop_per_row:>11.2f}{row.gflops:>9.1f}{100 * row.matmul_share:>10.0f}%"
+        )
+        click.echo(f"{row.batch:>6}{row.ms_p50:>10.3f}{row.ms_p99:>10.3f}{row.us_per_pursuer:>12.1f}{rate}")
+
+
+@bench.command("eval")
+@policy_option
+@scenarios_option
+@suite_option
+@episodes_option
+@seed_option
+@max_steps_option
+@click.option(
+    "--workers", type=IntRange(min=1, max=MAX_WORKERS), default=2, show_default=True,
+    help="Local worker processes, each running batches.",
+)
+@click.option(
+    "--envs", "env_counts", type=IntRange(min=1, max=4096), multiple=True, default=(1, BATCH_ENVS),
+    show_default=True, help="Episodes a batch runs at once, to time in turn (1: each episode alone, as before batching).",
+)
+@click.option(
+    "--repeat", type=IntRange(min=1, max=100), default=1, show_default=True,
+    help="Rounds over the batch sizes; each one's best round counts.",
+)
+@json_option
+def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, workers, env_counts, repeat,
+                 as_json) -> None:
+    """Evaluation speed by batch size, side by side: the same evaluation (scenario by
+    scenario, as `terl-rt eval` runs it, on the local backend) with each --envs in turn,
+    --repeat rounds, so all see the same load. Prints the best round's time, episodes per
+    second, each one's speed-up over the first --envs, the CPU time of the run (this process
+    and its workers; on a loaded machine the better measure of the work) and its ratio, and
+    whether every episode came out the same. Every worker runs its policy on one onnxruntime
+    thread.
+
+    \b
+    Examples:
+      terl-rt bench eval --scenario small-15 --workers 1
+      terl-rt bench eval --suite paper --episodes 20 --workers 2 --envs 1 --envs 20
+    """
+    policy = open_policy(policy_path, threads=1)
+    scenarios = resolve_scenarios(scenario_names, None, suite)
+    rows = backend_speeds(policy, scenarios, episodes, seed, workers, backends=("local",), repeat=repeat,
+                          max_steps=max_steps, envs=env_counts)
+    identical = _echo_speeds(policy, scenarios, episodes, seed, max_steps, repeat, rows, as_json, f", {workers} worker(s)")
+    if as_json:
+        return
+    click.echo(f"{'envs':>6}{'episodes':>10}{'run (s)':>10}{'episodes/s':>12}{'speed-up':>10}{'CPU (s)':>10}"
+               f"{'CPU ratio':>11}")
+    for row in rows:
+        click.echo(f"{row.envs:>6}{row.episodes:>10}{row.run_s:>10.1f}{row.episodes_per_s:>12.2f}"
+                   f"{rows[0].run_s / row.run_s:>9.2f}x{row.cpu_s:>10.1f}{rows[0].cpu_s / row.cpu_s:>10.2f}x")
+    click.echo(f"every episode the same at every batch size: {'yes' if identical else 'NO'}")
 
 
 @bench.command("backends")
@@ -172,18 +235,9 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
                 rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)
             except RayMissing as error:
                 raise BadInput(str(error)) from None
-    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    identical = _echo_speeds(policy, scenarios, episodes, seed, max_steps, repeat, rows, as_json)
     if as_json:
-        click.echo(json.dumps({
-            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
-            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
-            "identical": identical,
-        }))
         return
-    click.echo(
-        f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, seed {seed}"
-        + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
-    )
     click.echo(f"{'backend':<9}{'workers':>8}{'episodes':>10}{'start (s)':>11}{'run (s)':>10}{'episodes/s':>12}{'ray/local':>11}")
     for local, ray in zip(rows[::2], rows[1::2]):
         for row in (local, ray):
@@ -191,3 +245,22 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
             click.echo(f"{row.backend:<9}{row.workers:>8}{row.episodes:>10}{row.start_s:>11.1f}{row.run_s:>10.1f}"
                        f"{row.episodes_per_s:>12.2f}{ratio:>11}")
     click.echo(f"every episode the same on every backend and worker count: {'yes' if identical else 'NO'}")
+
+
+def _echo_speeds(policy, scenarios, episodes: int, seed: int, max_steps, repeat: int, rows, as_json: bool,
+                 setting: str = "") -> bool:
+    """Print the JSON object of timed evaluations `rows` (BackendSpeed), or the heading line of
+    their table (`setting` added to it); returns whether every row gave the same episodes."""
+    identical = all(row.per_episode == rows[0].per_episode for row in rows)
+    if as_json:
+        click.echo(json.dumps({
+            "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
+            "seed": seed, "max_steps": max_steps, "repeat": repeat, "rows": [row.to_dict() for row in rows],
+            "identical": identical,
+        }))
+    else:
+        click.echo(
+            f"{policy.name} on {', '.join(scenario.name for scenario in scenarios)}: {episodes} episodes each, "
+            f"seed {seed}{setting}" + (f", step limit {max_steps}" if max_steps else "") + f", best of {repeat}"
+        )
+    return identical

@@ -11,6 +11,7 @@ from terl_rt.cli.bench import bench
 from terl_rt.cli.eval import eval_command
 from terl_rt.cli.info import info
 from terl_rt.cli.layout import layout_command
+from terl_rt.cli.optimize import optimize_command
 from terl_rt.cli.render import render_command
 from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
@@ -97,6 +98,7 @@ cli.add_command(bench)
 cli.add_command(eval_command)
 cli.add_command(info)
 cli.add_command(layout_command)
+cli.add_command(optimize_command)
 cli.add_command(render_command)
 cli.add_command(replay)
 cli.add_command(report_command)

@@ -226,10 +226,16 @@ threads_option = click.option(
     "--threads", type=IntRange(min=1, max=MAX_THREADS), default=None,
     help="onnxruntime intra-op threads [default: onnxruntime's choice; 1 per worker].",
 )
-episodes_option = click.option(
-    "--episodes", type=IntRange(min=1, max=MAX_EPISODES), default=20, show_default=True,
-    help="Episodes per scenario; episode k runs with seed + k.",
-)
+def _episodes_option(default: int):
+    return click.option(
+        "--episodes", type=IntRange(min=1, max=MAX_EPISODES), default=default, show_default=True,
+        help="Episodes per scenario; episode k runs with seed + k.",
+    )
+
+
+episodes_option = _episodes_option(20)
+report_episodes_option = _episodes_option(100)
+"""`terl-rt report`'s: 100 episodes a preset (batched, minutes on 2 cores), where the paper ran 20."""
 max_steps_option = click.option(
     "--max-steps", type=IntRange(min=1, max=MAX_STEPS), default=None,
     help="Step limit per episode (0.5 s steps) [default: the scenario's, 1000].",

@@ -16,7 +16,6 @@ from terl_rt.cli.options import (
     BadInput,
     address_option,
     backend_option,
-    episodes_option,
     evaluate_with_progress,
     json_option,
     max_steps_option,
@@ -25,6 +24,7 @@ from terl_rt.cli.options import (
     policy_json,
     policy_files,
     policy_threads,
+    report_episodes_option,
     resolve_scenarios,
     run_backend,
     seed_option,
@@ -90,7 +90,7 @@ def command_line(
     help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
     "ones; see `terl-rt scenarios`].",
 )
-@episodes_option
+@report_episodes_option
 @seed_option
 @max_steps_option
 @workers_option

@@ -7,6 +7,7 @@ and only when it is asked for.
 
 from __future__ import annotations
 
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend
 from terl_rt.extras import install_hint
@@ -20,11 +21,12 @@ class RayMissing(ImportError):
 
 
 def open_backend(name: str, workers: int | None = None, address: str | None = None,
-                 threads: int | None = None) -> Backend:
+                 threads: int | None = None, envs: int = BATCH_ENVS) -> Backend:
     """The backend `name` ("local" or "ray"), ready to run episodes; close it with `close()`
     (or a `with` block) when done.
 
-    workers: episodes at once (local default 1; Ray default every CPU of the cluster).
+    workers: batches at once (local default 1; Ray default every CPU of the cluster);
+    envs: episodes a batch runs at once, in one World.
     address: the Ray cluster to join (Ray only; None starts a local Ray instance).
     threads: onnxruntime intra-op threads per worker. Raises RayMissing without Ray and
     terl_rt.evaluation.runs.BackendError when a cluster cannot be reached.
@@ -34,11 +36,11 @@ def open_backend(name: str, workers: int | None = None, address: str | None = No
     if name == "local":
         if address is not None:
             raise ValueError("an address names a Ray cluster; it needs the ray backend")
-        return LocalBackend(workers or 1, threads)
+        return LocalBackend(workers or 1, threads, envs)
     try:
         from terl_rt.evaluation.ray_backend import RayBackend
     except ModuleNotFoundError as error:
         if error.name != "ray" and not str(error.name).startswith("ray."):
             raise
         raise RayMissing(f"the ray backend needs Ray, which is not installed; install it with: {RAY_INSTALL_HINT}") from None
-    return RayBackend(address, workers, threads)
+    return RayBackend(address, workers, threads, envs)

@@ -1,23 +1,27 @@
 """Evaluate a policy on a scenario: success rate, travel time, collision ratio (world.md section 10).
 
-Episode k of an evaluation with seed s runs `Simulator(scenario, seed=s + k)`, so any
-episode can be run again alone (terl_rt.evaluation.play runs one). Where the episodes
-run is a backend (terl_rt.evaluation.backends): this process, spawned processes
+Episode k of an evaluation with seed s is the episode of `Simulator(scenario, seed=s + k)`,
+bit for bit, so any episode can be run again alone (terl_rt.evaluation.play runs one).
+The episodes run in batches, each batch's together in one World with one policy call a
+step for all their deciding pursuers (terl_rt.evaluation.play.batch_steps). Where the
+batches run is a backend (terl_rt.evaluation.backends): this process, spawned processes
 (`workers > 1`) or Ray tasks; results and logs are the same on each, in episode order,
-whatever the number of workers (terl_rt.evaluation.runs).
+whatever the number of workers or the batch size (terl_rt.evaluation.runs).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
-from terl_rt.evaluation.stats import episode_intervals
+from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
@@ -50,11 +54,31 @@ class ScenarioResult:
     wall_s: float
     """s: wall-clock time of the whole evaluation."""
     per_episode: tuple[EpisodeMetrics, ...]
+    step_s: float = 0.5
+    """s: the decision step (params.dt x params.substeps); the step limit lasts max_steps x step_s."""
+
+    @property
+    def limit_s(self) -> float:
+        """s: the step limit as a time, what a failed episode counts in `travel_time_s_limit_mean`."""
+        return self.max_steps * self.step_s
+
+    @property
+    def travel_time_s_success_mean(self) -> float:
+        """s: mean travel time of the successful episodes (nan without one)."""
+        times = travel_times(self.per_episode, self.limit_s)["travel_time_s_success"]
+        return float(times.mean()) if times.size else float("nan")
+
+    @property
+    def travel_time_s_limit_mean(self) -> float:
+        """s: mean travel time of every episode, each failure counted at the step limit (nan without episodes)."""
+        times = travel_times(self.per_episode, self.limit_s)["travel_time_s_limit"]
+        return float(times.mean()) if times.size else float("nan")
 
     def ci95(self) -> dict[str, tuple[float, float]]:
-        """95 % bootstrap intervals (fixed seed) of the success rate, mean travel time (s)
-        and mean collision ratio over the episodes (terl_rt.evaluation.stats)."""
-        return episode_intervals(self.per_episode)
+        """95 % intervals over the episodes (terl_rt.evaluation.stats.episode_intervals): the
+        success rate's exact (Clopper-Pearson) one, bootstrap ones (fixed seed) of the mean
+        travel times (s: as run, of successes, failures at the limit) and collision ratio."""
+        return episode_intervals(self.per_episode, self.limit_s)
 
     def episode_rows(self) -> list[dict]:
         """One row per episode (fields of RESULTS_SCHEMA): index, seed, outcome (success,
@@ -88,14 +112,22 @@ class ScenarioResult:
             "success_rate": self.success_rate,
             "travel_time_s_mean": self.travel_time_s_mean,
             "travel_time_s_std": self.travel_time_s_std,
+            "travel_time_s_success_mean": _number(self.travel_time_s_success_mean),
+            "travel_time_s_limit_mean": _number(self.travel_time_s_limit_mean),
+            "limit_s": self.limit_s,
             "collision_ratio_mean": self.collision_ratio_mean,
             "steps_mean": self.steps_mean,
-            "ci95": {name: list(interval) for name, interval in self.ci95().items()},
+            "ci95": {name: [_number(bound) for bound in interval] for name, interval in self.ci95().items()},
             "wall_s": self.wall_s,
         }
         if per_episode:
             row["per_episode"] = self.episode_rows()
         return row
+
+
+def _number(value: float) -> float | None:
+    """`value` for JSON: None where it is NaN (a mean over no episode), which JSON cannot hold."""
+    return None if math.isnan(value) else value
 
 
 def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
@@ -117,12 +149,14 @@ def evaluate_policy(
     progress: Progress | None = None,
     threads: int | None = None,
     backend: Backend | None = None,
+    envs: int = BATCH_ENVS,
 ) -> ScenarioResult:
     """Evaluate `policy` on `episodes` episodes of `scenario`; episode k uses seed + k.
 
     max_steps overrides the scenario's step limit. backend: where the episodes run
     (terl_rt.evaluation.backends.open_backend; the caller closes it); without one they run
-    here, or in `workers` spawned processes when workers > 1. threads: onnxruntime
+    here, or in `workers` spawned processes when workers > 1, each batch running `envs`
+    episodes at once (a backend has its own). threads: onnxruntime
     intra-op threads of a policy given as a path and of each worker's policy (workers
     default to 1). log_path: an MCAP file to write every step to (see
     terl_rt.logs.format), or an open EpisodeLogWriter to append to (the caller closes
@@ -133,9 +167,9 @@ def evaluate_policy(
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     if backend is None:
-        backend = LocalBackend(workers, threads)
-    elif workers != 1:
-        raise ValueError("pass workers to the backend, not to evaluate_policy as well")
+        backend = LocalBackend(workers, threads, envs)
+    elif workers != 1 or envs != BATCH_ENVS:
+        raise ValueError("pass workers and envs to the backend, not to evaluate_policy as well")
     if max_steps is not None:
         scenario = scenario.replace(max_steps=max_steps)
 
@@ -163,4 +197,5 @@ def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[Episode
     return ScenarioResult(
         name=scenario.name, episodes=len(per_episode), seed=seed, max_steps=scenario.max_steps,
         **asdict(summarize(per_episode)), wall_s=wall_s, per_episode=tuple(per_episode),
+        step_s=scenario.params.dt * scenario.params.substeps,
     )

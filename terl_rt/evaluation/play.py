@@ -1,26 +1,43 @@
-"""One episode of a policy: `Simulator(scenario, seed)` driven by its greedy actions.
+"""Episodes of a policy, batched: the episodes of a list of seeds run together in one
+`World`, episode j bit for bit the one `Simulator(scenario, seed=seeds[j])` runs alone.
 
-Each step the policy sees every active pursuer's observation in one call;
-`terl_rt.sim.rollout.Rollout` scatters its greedy actions to the [N] action vector
-(collided pursuers get 0, which the simulator ignores). `episode_steps` yields the
-episode's steps as it takes them (what a Ray task streams back), `run_episode` hands them
-to a callback (what a process or the evaluating process itself does).
+Each step the policy sees every deciding (active) pursuer of every running episode in one
+call; `terl_rt.sim.rollout.Rollout` scatters its greedy actions to the [B, N] action array
+(collided pursuers get 0, which the world ignores), restarts each environment whose
+episode ended with the next episode and drops the environments left without one.
+`batch_steps` yields every episode's steps as it takes them (what a Ray task streams
+back, what a process sends), `run_episode` runs one episode.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from terl_rt.logs.format import StepRecord
-from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
+from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, PolicyOutput
 from terl_rt.sim.metrics import EpisodeMetrics
-from terl_rt.sim.rollout import Rollout
+from terl_rt.sim.rollout import Rollout, RolloutStep, Turn
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.simulator import StepInfo
 from terl_rt.sim.state import snapshot
 from terl_rt.sim.world import World
+
+BATCH_ENVS = 20
+"""environments of a batch's World: the episodes that run at once (each policy call
+holds their deciding pursuers; 20 large-80 episodes make 1,600 rows)."""
+
+def check_envs(envs: int) -> int:
+    """`envs`, a batch's environments, checked: a positive integer."""
+    if isinstance(envs, bool) or not isinstance(envs, int) or envs < 1:
+        raise ValueError(f"envs (episodes run at once) must be a positive integer, got {envs!r}")
+    return envs
+
+
+Message = tuple[str, int, Any]
+"""("step", j, StepRecord) or ("end", j, EpisodeMetrics), j the episode's index into the seeds."""
 
 
 class PolicyOutputError(ContractError):
@@ -28,46 +45,68 @@ class PolicyOutputError(ContractError):
     the policy file is at fault, not the runtime)."""
 
 
-def check_finite_output(policy: OnnxPolicy, q_values: np.ndarray, target_weights: np.ndarray | None,
-                        step: int, seed: int) -> None:
-    """Raise PolicyOutputError naming the policy, the step and the seed when an output is NaN or Inf."""
-    for name, values in (("q_values", q_values), ("target_weights", target_weights)):
+def check_finite_output(policy: OnnxPolicy, output: PolicyOutput, turn: Turn, world: World,
+                        seeds: np.ndarray) -> None:
+    """Raise PolicyOutputError naming the policy, the step, the episode's seed and its
+    decision row when an output of the turn's rows is NaN or Inf."""
+    for name, values in (("q_values", output.q_values), ("target_weights", output.target_weights)):
         if values is None or np.isfinite(values).all():
             continue
         row = int(np.argwhere(~np.isfinite(values))[0][0])
         bad = values.reshape(len(values), -1)[row]
         bad = bad[~np.isfinite(bad)][0]
+        env = int(turn.rows[row]) // world.scenario.pursuers
+        first_row = int(np.searchsorted(turn.rows, env * world.scenario.pursuers))
         raise PolicyOutputError(
-            f"policy {policy.name} ({policy.path}) output a non-finite {name} ({bad}) at step {step} "
-            f"of the episode with seed {seed} (decision row {row}); the run is stopped"
+            f"policy {policy.name} ({policy.path}) output a non-finite {name} ({bad}) at step "
+            f"{int(world.state.steps[env]) + 1} of the episode with seed {int(seeds[turn.episodes[env]])} "
+            f"(decision row {row - first_row}); the run is stopped"
         )
 
 
-def episode_steps(
-    policy: OnnxPolicy, scenario: Scenario, seed: int, record: bool = True,
-) -> Generator[StepRecord, None, EpisodeMetrics]:
-    """Run one episode of `Simulator(scenario, seed)` (its world: environment 0 of
-    `World(scenario, 1, seed)`) with the policy's greedy actions.
+def batch_steps(
+    policy: OnnxPolicy, scenario: Scenario, seeds: Sequence[int], record: bool = True, envs: int = BATCH_ENVS,
+    stop: Callable[[], bool] | None = None,
+) -> Iterator[Message]:
+    """Run the episodes of `seeds` [K] int with the policy's greedy actions, together in
+    one World of min(envs, K) environments; episode j is `Simulator(scenario, seeds[j])`'s.
 
-    Yields a StepRecord for the state after reset (step 0) and after each step when
-    `record`, nothing otherwise; returns the episode's metrics (`yield from` gives them).
+    Yields ("step", j, StepRecord) for episode j's state after reset (step 0) and after
+    each step when `record`, then ("end", j, EpisodeMetrics); each episode's messages come
+    in order, the episodes' interleaved as they run (episodes start in order). `stop` is
+    asked before every step: when it answers true the run ends there, its episodes unended.
     """
-    world = World(scenario, num_envs=1, seed=seed)
-    rollout = Rollout(world)
-    if record:
-        yield StepRecord(step=0, state=snapshot(world.state, 0))
-    while True:
+    seeds = np.asarray(seeds, np.int64)
+    world = World(scenario, num_envs=min(envs, len(seeds)))
+    rollout = Rollout(world, seeds)
+    while not rollout.finished:
+        if stop is not None and stop():
+            return
         turn = rollout.turn()
+        if record:
+            for env in np.flatnonzero(world.state.steps == 0):
+                yield "step", int(turn.episodes[env]), StepRecord(step=0, state=snapshot(world.state, env))
         output = policy.evaluate(turn.observation.rows(turn.rows))
-        check_finite_output(policy, output.q_values, output.target_weights, int(world.state.steps[0]) + 1, seed)
+        check_finite_output(policy, output, turn, world, seeds)
         step = rollout.step(output.actions)
         if record:
-            yield StepRecord(
-                step=int(world.state.steps[0]), state=snapshot(world.state, 0), pursuer_actions=step.actions[0],
-                decided=turn.rows, target_weights=output.target_weights, info=StepInfo.of(step.result),
-            )
-        if step.outcomes:
-            return step.outcomes[0]
+            yield from _step_records(turn, step, output, world)
+        for env, metrics in step.outcomes.items():
+            yield "end", int(turn.episodes[env]), metrics
+
+
+def _step_records(turn: Turn, step: RolloutStep, output: PolicyOutput, world: World) -> Iterator[Message]:
+    """("step", j, StepRecord) of every environment's step, its rows cut from the batch's."""
+    n = world.scenario.pursuers
+    bounds = np.searchsorted(turn.rows, n * np.arange(world.num_envs + 1))  # rows are ascending
+    for env in range(world.num_envs):
+        rows = slice(bounds[env], bounds[env + 1])
+        yield "step", int(turn.episodes[env]), StepRecord(
+            step=int(world.state.steps[env]), state=snapshot(world.state, env), pursuer_actions=step.actions[env],
+            decided=turn.rows[rows] - n * env,
+            target_weights=None if output.target_weights is None else output.target_weights[rows],
+            info=StepInfo.of(step.result, env),
+        )
 
 
 def run_episode(
@@ -76,12 +115,11 @@ def run_episode(
     seed: int,
     on_step: Callable[[StepRecord], None] | None = None,
 ) -> EpisodeMetrics:
-    """`episode_steps` with every StepRecord handed to `on_step` (step 0 after reset, then
-    each step) as it is taken; returns the episode's metrics."""
-    steps = episode_steps(policy, scenario, seed, record=on_step is not None)
-    while True:
-        try:
-            record = next(steps)
-        except StopIteration as end:
-            return end.value
-        on_step(record)
+    """One episode of `Simulator(scenario, seed)` (`batch_steps` of one seed), every
+    StepRecord handed to `on_step` (step 0 after reset, then each step) as it is taken;
+    returns the episode's metrics."""
+    for kind, _, payload in batch_steps(policy, scenario, [seed], record=on_step is not None):
+        if kind == "end":
+            return payload
+        on_step(payload)
+    raise AssertionError("unreachable: every episode ends")

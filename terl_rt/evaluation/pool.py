@@ -1,10 +1,11 @@
-"""The local backend: episodes in this process (one worker) or in spawned processes.
+"""The local backend: batches of episodes in this process (one worker) or in spawned processes.
 
-With `workers > 1` the episodes are spread over processes (spawn), each reopening the
-policy files; they send each step to this process as they take it (one pipe, one message
-at a time), which delivers it to the run (terl_rt.evaluation.runs). Interrupted or failed,
-the workers stop within a step and what they sent is delivered. Workers end with their
-parent, even when it is killed (SIGKILL).
+The specs run in batches (terl_rt.evaluation.runs.batches), each batch's episodes together
+in one World. With `workers > 1` the batches are spread over processes (spawn), each
+reopening the policy files; they send each step to this process as they take it (one
+pipe, one message at a time), which delivers it to the run (terl_rt.evaluation.runs).
+Interrupted or failed, the workers stop within a step and what they sent is delivered.
+Workers end with their parent, even when it is killed (SIGKILL).
 """
 
 from __future__ import annotations
@@ -19,23 +20,24 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 
-from terl_rt.evaluation.play import run_episode
-from terl_rt.evaluation.runs import Deliver, EpisodeSpec, sigint_as_flag
-from terl_rt.logs.format import StepRecord
+from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
+from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, sigint_as_flag
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
 
 class LocalBackend:
-    """Runs episodes on this machine: in this process when `workers` is 1, else in that
-    many spawned processes. threads: onnxruntime intra-op threads of each worker's
-    policies (default 1; with one worker the policies are used as they were opened)."""
+    """Runs batches of episodes on this machine: in this process when `workers` is 1, else
+    in that many spawned processes. threads: onnxruntime intra-op threads of each worker's
+    policies (default 1; with one worker the policies are used as they were opened).
+    envs: episodes a batch runs at once (its World's environments; 1 runs them one by one)."""
 
-    def __init__(self, workers: int = 1, threads: int | None = None):
+    def __init__(self, workers: int = 1, threads: int | None = None, envs: int = BATCH_ENVS):
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive integer, got {workers!r}")
         self.workers = workers
         self.threads = threads
+        self.envs = check_envs(envs)
 
     def __enter__(self) -> LocalBackend:
         return self
@@ -48,12 +50,16 @@ class LocalBackend:
 
     def run(self, policies: Sequence[OnnxPolicy], specs: Sequence[EpisodeSpec], record: bool,
             deliver: Deliver) -> None:
-        if min(self.workers, len(specs)) == 1:
-            for number, spec in enumerate(specs):
-                on_step = (lambda step, number=number: deliver("step", number, step)) if record else None
-                deliver("end", number, run_episode(policies[spec.policy], spec.scenario, spec.seed, on_step))
+        parts = batches(specs, self.workers)
+        if min(self.workers, len(parts)) == 1:
+            for batch in parts:
+                spec = specs[batch[0]]
+                seeds = [specs[number].seed for number in batch]
+                for kind, j, payload in batch_steps(policies[spec.policy], spec.scenario, seeds, record, self.envs):
+                    deliver(kind, batch[j], payload)
             return
-        _run_in_workers(policies, specs, min(self.workers, len(specs)), self.threads, record, deliver)
+        _run_in_workers(policies, specs, parts, min(self.workers, len(parts)), self.threads, self.envs, record,
+                        deliver)
 
 
 # --- worker processes ------------------------------------------------------------------
@@ -66,10 +72,6 @@ _worker_channel = None
 _PR_SET_PDEATHSIG = 1
 _WATCHDOG_S = 0.5
 """s: how often a worker checks that its parent is still alive."""
-
-
-class _Stopped(Exception):
-    """The parent asked the workers to stop (it was interrupted)."""
 
 
 def _die_with_parent(parent: int) -> None:
@@ -109,18 +111,12 @@ def _init_worker(files: tuple[tuple[str, str], ...], threads: int | None, stop, 
             raise ContractError(f"{path}: the policy file changed on disk during the evaluation")
 
 
-def _worker_episode(number: int, policy: int, scenario: Scenario, seed: int, record: bool) -> None:
-    """Run spec `number`, sending ("step", number, StepRecord) for every step (when
-    `record`) and then ("end", number, metrics) to the parent as they happen."""
-
-    def on_step(step: StepRecord) -> None:
-        if _worker_stop.is_set():
-            raise _Stopped
-        if record:
-            _send(("step", number, step))
-
-    metrics = run_episode(_worker_policies[policy], scenario, seed, on_step)
-    _send(("end", number, metrics))
+def _worker_batch(numbers: list[int], policy: int, scenario: Scenario, seeds: list[int], envs: int,
+                  record: bool) -> None:
+    """Run the batch of specs `numbers` (seeds `seeds`, `envs` at once), sending ("step", number, StepRecord)
+    for every step (when `record`) and ("end", number, metrics) to the parent as they happen."""
+    for kind, j, payload in batch_steps(_worker_policies[policy], scenario, seeds, record, envs, _worker_stop.is_set):
+        _send((kind, numbers[j], payload))
 
 
 def _send(message: tuple) -> None:
@@ -134,12 +130,15 @@ def _send(message: tuple) -> None:
 def _run_in_workers(
     policies: Sequence[OnnxPolicy],
     specs: Sequence[EpisodeSpec],
+    parts: list[list[int]],
     workers: int,
     threads: int | None,
+    envs: int,
     record: bool,
     deliver: Deliver,
 ) -> None:
-    """Run the specs in `workers` spawned processes that stream their messages to this one."""
+    """Run the batches `parts` of the specs in `workers` spawned processes that stream their
+    messages to this one."""
     context = get_context("spawn")
     stop = context.Event()
     messages, sending = context.Pipe(duplex=False)
@@ -151,8 +150,9 @@ def _run_in_workers(
     with sigint_as_flag() as interrupted:
         try:
             futures = [
-                pool.submit(_worker_episode, number, spec.policy, spec.scenario, spec.seed, record)
-                for number, spec in enumerate(specs)
+                pool.submit(_worker_batch, batch, specs[batch[0]].policy, specs[batch[0]].scenario,
+                            [specs[number].seed for number in batch], envs, record)
+                for batch in parts
             ]
             while ended < len(specs):
                 if interrupted:

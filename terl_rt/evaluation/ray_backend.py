@@ -1,20 +1,23 @@
-"""The Ray backend: every episode a Ray task, on a local Ray instance or a cluster.
+"""The Ray backend: every batch of episodes a Ray task, on a local Ray instance or a cluster.
 
 This module imports Ray; only `terl_rt.evaluation.backends.open_backend` imports it, when
 the Ray backend is asked for, so terl_rt runs without Ray installed.
 
 - Policies travel through Ray's object store (`ray.put` of the ONNX bytes), so workers
   need no shared filesystem; each worker process opens a policy once and keeps it.
-- An episode is a streaming generator task: it yields each StepRecord as it takes it
-  (only when the run is logged) and then its metrics; the driver takes them as they come
-  and hands them to the run (terl_rt.evaluation.runs), which writes the log in order.
+- A batch (terl_rt.evaluation.runs.batches: a preset's episodes split over the workers)
+  is a streaming generator task running its episodes together in one World: it yields
+  each episode's messages (terl_rt.evaluation.play.batch_steps) as it takes them, steps
+  only when the run is logged; the driver takes them as they come and hands them to the
+  run (terl_rt.evaluation.runs), which writes the log in order.
 - A worker that dies (killed, its node lost) is retried on another by Ray
   (`EPISODE_RETRIES`). Ray reports a generator's items once each, by position: the retry
-  runs the episode again from its seed and only its items past those already received
-  come through, so no step or episode is counted twice, and since an episode is the same
-  bit for bit wherever it runs, the stream joins up exactly. An exception inside an
-  episode (a policy that outputs NaN) fails the same way again and is not retried.
-- At most `workers` episodes are submitted at a time, in spec order, so that the steps the
+  runs the batch again from its seeds and only its items past those already received
+  come through, so no step or episode is counted twice, and since a batch yields the
+  same items in the same order wherever it runs, the stream joins up exactly. An
+  exception inside a batch (a policy that outputs NaN) fails the same way again and is
+  not retried.
+- At most `workers` batches are submitted at a time, in spec order, so that the steps the
   driver holds back for episode order stay few.
 """
 
@@ -30,14 +33,13 @@ from dataclasses import dataclass
 import ray
 from ray.exceptions import RayError, RayTaskError
 
-from terl_rt.evaluation.play import episode_steps
-from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, sigint_as_flag
+from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
+from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, batches, sigint_as_flag
 from terl_rt.policy.onnx_policy import OnnxPolicy
-from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 
 EPISODE_RETRIES = 3
-"""times Ray runs an episode again after its worker died."""
+"""times Ray runs a batch again after its worker died."""
 CONNECT_TIMEOUT_S = 10.0
 """s: how long a cluster's address may take to answer before the run gives up."""
 _WAIT_S = 0.1
@@ -70,25 +72,28 @@ def _worker_policy(ref: _PolicyRef) -> OnnxPolicy:
     return _worker_policies[key]
 
 
-def episode_task(policy: _PolicyRef, scenario: Scenario, seed: int, record: bool):
-    """One episode as a Ray generator task: its StepRecords (when `record`), then its EpisodeMetrics."""
-    metrics = yield from episode_steps(_worker_policy(policy), scenario, seed, record)
-    yield metrics
+def batch_task(policy: _PolicyRef, scenario: Scenario, seeds: list[int], record: bool, envs: int):
+    """A batch of episodes as a Ray generator task: the messages of `batch_steps`, (kind,
+    j, payload) with j the episode's index into `seeds`."""
+    yield from batch_steps(_worker_policy(policy), scenario, seeds, record, envs)
 
 
 class RayBackend:
-    """Runs episodes as Ray tasks.
+    """Runs batches of episodes as Ray tasks.
 
     address: a running cluster to join (`HOST:PORT` of its head, or `auto`); None starts
     a local Ray instance with workers x threads CPUs (default: every CPU of this machine),
     shut down again by `close`. A process that has already called `ray.init` keeps its
-    connection (and it stays open). workers: episodes run at once (default: as many as the
-    cluster's CPUs hold); threads: onnxruntime intra-op threads of each episode's policy,
+    connection (and it stays open). workers: batches run at once (default: as many as the
+    cluster's CPUs hold); envs: episodes a batch runs at once; threads: onnxruntime
+    intra-op threads of each batch's policy,
     and the CPUs each task asks Ray for (default 1). Raises BackendError when the cluster
     cannot be reached.
     """
 
-    def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None):
+    def __init__(self, address: str | None = None, workers: int | None = None, threads: int | None = None,
+                 envs: int = BATCH_ENVS):
+        self.envs = check_envs(envs)
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
             raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
         self.threads = 1 if threads is None else threads
@@ -97,7 +102,7 @@ class RayBackend:
             _connect(address, None if workers is None else workers * self.threads)
         self.workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // self.threads)
         self._models: dict[str, ray.ObjectRef] = {}
-        self._task = ray.remote(episode_task).options(
+        self._task = ray.remote(batch_task).options(
             num_cpus=self.threads, max_retries=EPISODE_RETRIES, retry_exceptions=False,
         )
 
@@ -115,13 +120,16 @@ class RayBackend:
     def run(self, policies: Sequence[OnnxPolicy], specs: Sequence[EpisodeSpec], record: bool,
             deliver: Deliver) -> None:
         refs = [self._policy_ref(policy) for policy in policies]
-        waiting = iter(enumerate(specs))
+        waiting = iter(batches(specs, self.workers))
         streams: dict = {}
-        """ObjectRefGenerator -> spec number, of the episodes submitted and not yet ended."""
+        """ObjectRefGenerator -> [spec numbers of its batch, episodes not yet ended], of the
+        batches submitted and not yet ended."""
 
         def submit() -> None:
-            for number, spec in itertools.islice(waiting, self.workers - len(streams)):
-                streams[self._task.remote(refs[spec.policy], spec.scenario, spec.seed, record)] = number
+            for batch in itertools.islice(waiting, self.workers - len(streams)):
+                spec = specs[batch[0]]
+                seeds = [specs[number].seed for number in batch]
+                streams[self._task.remote(refs[spec.policy], spec.scenario, seeds, record, self.envs)] = [batch, len(batch)]
 
         with sigint_as_flag() as interrupted:
             try:
@@ -134,7 +142,7 @@ class RayBackend:
                         _take(stream, streams, specs, deliver)
                     submit()
             except BaseException:
-                # Interrupted or failed: the episodes stop; what they sent is delivered.
+                # Interrupted or failed: the batches stop; what they sent is delivered.
                 for stream in streams:
                     ray.cancel(stream)
                 _drain(streams, specs, deliver)
@@ -147,32 +155,32 @@ class RayBackend:
 
 
 def _take(stream, streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> None:
-    """Deliver the next item of a ready stream; an ended episode leaves `streams`."""
-    number = streams[stream]
+    """Deliver the next item of a ready stream; a batch whose episodes all ended leaves `streams`."""
+    batch, running = streams[stream]
     try:
-        item = ray.get(next(stream))
+        kind, j, payload = ray.get(next(stream))
     except RayTaskError as error:
-        raise error.cause from None  # the episode's own exception, e.g. PolicyOutputError
+        raise error.cause from None  # the batch's own exception, e.g. PolicyOutputError
     except RayError as error:
-        spec = specs[number]
+        spec, last = specs[batch[0]], specs[batch[-1]]
         raise BackendError(
-            f"episode {spec.index} of {spec.scenario.name} (seed {spec.seed}) could not be run on Ray: "
-            f"{type(error).__name__}: {error}"
+            f"episodes {spec.index}-{last.index} of {spec.scenario.name} (seeds {spec.seed}-{last.seed}) could not "
+            f"be run on Ray: {type(error).__name__}: {error}"
         ) from error
-    if isinstance(item, EpisodeMetrics):
-        del streams[stream]
-        deliver("end", number, item)
-    else:
-        deliver("step", number, item)
+    deliver(kind, batch[j], payload)
+    if kind == "end":
+        streams[stream][1] = running - 1
+        if running == 1:
+            del streams[stream]
 
 
 def _drain(streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> None:
-    """Deliver every item the cancelled episodes had already sent."""
+    """Deliver every item the cancelled batches had already sent."""
     for stream in list(streams):
         while stream in streams and ray.wait([stream], timeout=0)[0]:
             try:
                 _take(stream, streams, specs, deliver)
-            except Exception:  # the episode failed or was cancelled: the error that stopped the run goes on
+            except Exception:  # the batch failed or was cancelled: the error that stopped the run goes on
                 break
 
 

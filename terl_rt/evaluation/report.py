@@ -75,11 +75,15 @@ class GroupSummary:
     """the group's presets that were evaluated, in the order given."""
     success_rate: float
     travel_time_s_mean: float
-    """s: mean of the presets' mean travel times."""
+    """s: mean of the presets' mean travel times (every episode as it ran)."""
     collision_ratio_mean: float
     ci95: dict = field(default_factory=dict)
-    """95 % bootstrap intervals of the three means (terl_rt.evaluation.stats.mean_intervals):
-    success_rate, travel_time_s, collision_ratio -> (low, high); NaN without episodes."""
+    """95 % intervals of the means (terl_rt.evaluation.stats.mean_intervals), by
+    terl_rt.evaluation.stats.CI_METRICS name -> (low, high); NaN without episodes."""
+    travel_time_s_success_mean: float = math.nan
+    """s: mean of the presets' mean travel times of their successful episodes."""
+    travel_time_s_limit_mean: float = math.nan
+    """s: mean of the presets' mean travel times, failures counted at the step limit."""
 
     def to_dict(self) -> dict:
         return {
@@ -123,9 +127,11 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
             travel_time_s_mean=_mean(r.travel_time_s_mean for r in members),
             collision_ratio_mean=_mean(r.collision_ratio_mean for r in members),
             ci95=(
-                mean_intervals([r.per_episode for r in members])
+                mean_intervals([r.per_episode for r in members], [r.limit_s for r in members])
                 if all(r.per_episode for r in members) else dict.fromkeys(CI_METRICS, (math.nan, math.nan))
             ),
+            travel_time_s_success_mean=_mean(r.travel_time_s_success_mean for r in members),
+            travel_time_s_limit_mean=_mean(r.travel_time_s_limit_mean for r in members),
         ))
     return summaries
 
@@ -259,13 +265,16 @@ def render_markdown(
         "## Per preset",
         "",
         "The paper reports one number per scale group, not per preset: the paper's TERL row for "
-        "the preset's group stands beside each preset. Travel time is mean ± standard deviation "
-        "over the episodes; brackets hold 95 % confidence intervals (bootstrap over the episodes, "
-        "fixed seed), which at 20 episodes are wide.",
+        "the preset's group stands beside each preset. Travel time is given three ways: mean ± "
+        "standard deviation of every episode as it ran (what the goals check), the mean over the "
+        "successful episodes, and the mean over every episode with each failure counted at the "
+        "step limit. Brackets hold 95 % confidence intervals: exact (Clopper-Pearson) for the "
+        "success rate, bootstrap over the episodes (fixed seed) for the means.",
         "",
-        "| preset | group | episodes | success | travel time (s) | collision ratio "
-        "| paper TERL success | paper TERL travel time (s) | paper TERL collision ratio |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| preset | group | episodes | success | travel time (s) | travel time, successes (s) "
+        "| travel time, failures at limit (s) | collision ratio | paper TERL success | paper TERL travel time (s) "
+        "| paper TERL collision ratio |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         group = scale_group(r.name)
@@ -274,6 +283,8 @@ def render_markdown(
         lines.append(
             f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{ci_text(ci, 'success_rate', 2)} "
             f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f}{ci_text(ci, 'travel_time_s', 1)} "
+            f"| {r.travel_time_s_success_mean:.1f}{ci_text(ci, 'travel_time_s_success', 1)} "
+            f"| {r.travel_time_s_limit_mean:.1f}{ci_text(ci, 'travel_time_s_limit', 1)} "
             f"| {r.collision_ratio_mean:.3f}{ci_text(ci, 'collision_ratio', 3)} | {paper} |"
         )
 
@@ -282,18 +293,23 @@ def render_markdown(
         "## Per scale group",
         "",
         "This policy's numbers are the mean over the group's evaluated presets, each preset "
-        "weighing the same, with 95 % bootstrap intervals (episodes resampled within each preset); "
-        "the paper's are its TERL row for the group.",
+        "weighing the same, with 95 % intervals (the success rate's exact, over the pooled episodes; "
+        "the means' bootstrap, episodes resampled within each preset); the paper's are its TERL row "
+        "for the group. Travel time: every episode as it ran (what the goals check), then over the "
+        "successes, then with failures counted at the step limit.",
         "",
-        "| group | presets | success | paper TERL | travel time (s) | paper TERL | collision ratio | paper TERL |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| group | presets | success | paper TERL | travel time (s) | travel time, successes (s) "
+        "| travel time, failures at limit (s) | paper TERL | collision ratio | paper TERL |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in group_summaries(results):
         paper = TERL_BY_GROUP[paper_group(s.group)]
         lines.append(
             f"| {s.group} | {', '.join(s.presets)} | {s.success_rate:.2f}{ci_text(s.ci95, 'success_rate', 2)} "
             f"| {paper.success_rate:.2f} "
-            f"| {s.travel_time_s_mean:.1f}{ci_text(s.ci95, 'travel_time_s', 1)} | {paper.travel_time_s:.2f} "
+            f"| {s.travel_time_s_mean:.1f}{ci_text(s.ci95, 'travel_time_s', 1)} "
+            f"| {s.travel_time_s_success_mean:.1f}{ci_text(s.ci95, 'travel_time_s_success', 1)} "
+            f"| {s.travel_time_s_limit_mean:.1f}{ci_text(s.ci95, 'travel_time_s_limit', 1)} | {paper.travel_time_s:.2f} "
             f"| {s.collision_ratio_mean:.3f}{ci_text(s.ci95, 'collision_ratio', 3)} | {paper.collision_ratio:.2f} |"
         )
 
@@ -342,7 +358,9 @@ def require_matplotlib() -> None:
 
 def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, title: str = "") -> Path:
     """Draw the three panels of the paper's Fig. 3 into a PNG at `path`: success rate,
-    travel time (s, mean ± std) and collision ratio against the number of pursuers N.
+    travel time (s, failures counted at the step limit) and collision ratio against the
+    number of pursuers N, each of this policy's points with its 95 % interval as error bars
+    (`INTERVAL_LEGEND`).
 
     This policy's small, medium and large presets are one line with markers, the released
     small config's (small-published-*) a dotted line with hollow diamonds; the paper's
@@ -357,15 +375,15 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
         group: [PRESETS[name].pursuers for name, g in PRESET_GROUPS.items() if g == group] for group in SCALE_GROUPS
     }
     panels = (
-        ("success rate", "success_rate", "success_rate", None),
-        ("travel time (s)", "travel_time_s_mean", "travel_time_s", "travel_time_s_std"),
-        ("collision ratio", "collision_ratio_mean", "collision_ratio", None),
+        ("success rate", "success_rate", "success_rate", "success_rate"),
+        (TRAVEL_PANEL, "travel_time_s_limit_mean", "travel_time_s", "travel_time_s_limit"),
+        ("collision ratio", "collision_ratio_mean", "collision_ratio", "collision_ratio"),
     )
 
     figure = figure_class(figsize=(15.0, 4.6), dpi=110)
     canvas_class(figure)
     axes = figure.subplots(1, 3)
-    for ax, (label, ours_field, paper_field, spread_field) in zip(axes, panels):
+    for ax, (label, ours_field, paper_field, ci_name) in zip(axes, panels):
         # The paper's TERL numbers: one value per scale group, drawn across the group's N.
         for index, group in enumerate(("small", "medium", "large")):
             xs = group_pursuers[group]
@@ -375,21 +393,21 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
             ax.plot(xs, [value] * len(xs), "s", color="C1", markerfacecolor="none")
         ax.plot(group_pursuers["CC"], [getattr(TERL_BY_GROUP["CC"], paper_field)], "*", color="C3",
                 markerfacecolor="none", markersize=13, label="paper TERL, CC")
-        if ours:
-            _draw_series(ax, ours, ours_field, spread_field, "o-", "C0", "this policy")
-        if released:
-            _draw_series(ax, released, ours_field, spread_field, "D:", "C4", "this policy, released small config",
-                         markerfacecolor="none")
-        for n, r in cc:
-            yerr = None if spread_field is None else [getattr(r, spread_field)]
-            ax.errorbar([n], [getattr(r, ours_field)], yerr=yerr, fmt="*", color="C2", markersize=13,
-                        capsize=3, label="this policy, cc-28")
+        for series, fmt, color, series_label, style in (
+            (ours, "o-", "C0", "this policy", {}),
+            (released, "D:", "C4", "this policy, released small config", {"markerfacecolor": "none"}),
+            (cc, "*", "C2", "this policy, cc-28", {"markersize": 13}),
+        ):
+            if series:
+                ys, bars = interval_bars([r for _, r in series], ours_field, ci_name)
+                ax.errorbar([n for n, _ in series], ys, yerr=bars, fmt=fmt, color=color, capsize=3,
+                            label=series_label, **style)
         ax.set_title(label)
         ax.set_xlabel("pursuers N")
         ax.grid(True, alpha=0.3)
         if ours_field == "success_rate":
             ax.set_ylim(-0.05, 1.05)
-        elif ours_field == "travel_time_s_mean":
+        elif ours_field == "travel_time_s_limit_mean":
             ax.set_ylim(bottom=0.0)
         else:
             # Collision ratios are mostly a few hundredths: zoom in, but never below 0.05.
@@ -397,13 +415,35 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
             top = max([0.05, *(1.15 * v for v in values), *(1.15 * p.collision_ratio for p in TERL_BY_GROUP.values())])
             ax.set_ylim(-0.04 * top, top)
     handles, labels = axes[0].get_legend_handles_labels()
-    figure.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
-    if title:
-        figure.suptitle(title)
-    figure.subplots_adjust(left=0.05, right=0.98, bottom=0.24, top=0.85, wspace=0.25)
+    _legend(figure, axes[0], handles, labels, title)
     path = Path(path)
     figure.savefig(path, format="png")
     return path
+
+
+TRAVEL_PANEL = "travel time (s), failures at the step limit"
+INTERVAL_LEGEND = "bars: 95 % intervals (success rate: exact, Clopper-Pearson; means: bootstrap over episodes)"
+"""What the figures' error bars are, in their legend."""
+
+
+def interval_bars(results: Sequence[ScenarioResult], value_field: str, ci_name: str) -> tuple[list, list]:
+    """The points (`value_field` of each result) and their asymmetric error bars [below,
+    above] from the 95 % interval `ci_name` of `ScenarioResult.ci95` (0 where unknown)."""
+    ys = [getattr(r, value_field) for r in results]
+    intervals = [r.ci95()[ci_name] for r in results]
+    below = [max(y - low, 0.0) if not math.isnan(low) else 0.0 for y, (low, _) in zip(ys, intervals)]
+    above = [max(high - y, 0.0) if not math.isnan(high) else 0.0 for y, (_, high) in zip(ys, intervals)]
+    return ys, [below, above]
+
+
+def _legend(figure, ax, handles: list, labels: list, title: str) -> None:
+    """The figure's legend below the panels, with what the error bars are as its last entry."""
+    (bars,) = ax.plot([], [], "|", color="0.45", markersize=12)
+    figure.legend([*handles, bars], [*labels, INTERVAL_LEGEND], loc="lower center", ncol=min(len(labels) + 1, 4),
+                  frameon=False)
+    if title:
+        figure.suptitle(title)
+    figure.subplots_adjust(left=0.05, right=0.98, bottom=0.26, top=0.85, wspace=0.25)
 
 
 METHOD_SHIFT_N = 0.5
@@ -418,8 +458,8 @@ def plot_comparison(
 ) -> Path:
     """Draw the paper's Fig. 3 for several methods into a PNG at `path`: success rate,
     travel time (s) and collision ratio against the number of pursuers N, one colour per
-    method (in the mapping's order), every point a preset's mean with its 95 % bootstrap
-    interval (`ScenarioResult.ci95`) as error bars.
+    method (in the mapping's order), every point a preset's mean with its 95 % interval
+    (`ScenarioResult.ci95`, `INTERVAL_LEGEND`) as error bars.
 
     A method's small, medium and large presets are one solid line with dots, the released
     small config's (small-published-*) a dotted line with hollow diamonds, cc-28 a star;
@@ -434,7 +474,7 @@ def plot_comparison(
     )
     panels = (
         ("success rate", "success_rate", "success_rate"),
-        ("travel time (s)", "travel_time_s_mean", "travel_time_s"),
+        (TRAVEL_PANEL, "travel_time_s_limit_mean", "travel_time_s_limit"),
         ("collision ratio", "collision_ratio_mean", "collision_ratio"),
     )
 
@@ -451,12 +491,9 @@ def plot_comparison(
             if not points:
                 continue
             drawn_kinds.add(kind)
-            intervals = [r.ci95() for _, r in points]
             for ax, (_, value_field, ci_name) in zip(axes, panels):
-                ys = [getattr(r, value_field) for _, r in points]
-                below = [max(y - ci[ci_name][0], 0.0) for y, ci in zip(ys, intervals)]
-                above = [max(ci[ci_name][1] - y, 0.0) for y, ci in zip(ys, intervals)]
-                ax.errorbar([n + shift for n, _ in points], ys, yerr=[below, above], fmt=fmt, color=color,
+                ys, bars = interval_bars([r for _, r in points], value_field, ci_name)
+                ax.errorbar([n + shift for n, _ in points], ys, yerr=bars, fmt=fmt, color=color,
                             capsize=3, label=label if ax is axes[0] else None, **style)
             label = None  # one legend entry a method
     # The line styles in grey, for the legend, after the methods.
@@ -475,10 +512,7 @@ def plot_comparison(
         else:
             top = ax.get_ylim()[1]
             ax.set_ylim(-0.04 * top, top)  # points at 0 stay visible
-    figure.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
-    if title:
-        figure.suptitle(title)
-    figure.subplots_adjust(left=0.05, right=0.98, bottom=0.24, top=0.85, wspace=0.25)
+    _legend(figure, axes[0], handles, labels, title)
     path = Path(path)
     figure.savefig(path, format="png")
     return path
@@ -487,19 +521,6 @@ def plot_comparison(
 def _by_pursuers(results) -> list[tuple[int, ScenarioResult]]:
     """(pursuers N, result) of preset results, by N."""
     return sorted(((PRESETS[r.name].pursuers, r) for r in results), key=lambda pair: pair[0])
-
-
-def _draw_series(ax, series: Sequence[tuple[int, ScenarioResult]], value_field: str, spread_field: str | None,
-                 fmt: str, color: str, label: str, **style) -> None:
-    """One line of (N, result) points: `value_field` of each result, with `spread_field`
-    (a field of ScenarioResult) as symmetric error bars when given."""
-    xs = [n for n, _ in series]
-    ys = [getattr(r, value_field) for _, r in series]
-    if spread_field is None:
-        ax.plot(xs, ys, fmt, color=color, label=label, **style)
-    else:
-        ax.errorbar(xs, ys, yerr=[getattr(r, spread_field) for _, r in series], fmt=fmt, color=color,
-                    capsize=3, label=label, **style)
 
 
 def _agg_figure_classes():

@@ -1,15 +1,16 @@
 """A run of episodes: what to run (`EpisodeSpec`), where (a `Backend`), and how the results
 come back in order.
 
-A backend runs the specs wherever it runs them (this process, spawned processes, Ray
-tasks) and hands each message to the run as it arrives: ("step", i, StepRecord) for every
+A backend runs the specs in batches (`batches`), the episodes of a batch together in one
+World (terl_rt.evaluation.play.batch_steps), wherever it runs them (this process, spawned
+processes, Ray tasks), and hands each message to the run as it arrives: ("step", i, StepRecord) for every
 step of spec i when the run is logged, then ("end", i, EpisodeMetrics). `run_episodes`
 puts them in spec order: a log keeps each episode's records together, so the lowest
 unfinished episode is written as its steps arrive and later episodes' steps wait in
 memory until their turn; episodes are reported in spec order. Interrupted or failed, the
 run writes what waits before the error goes on (the episodes that did not end stay
-unended in the log). The order, and so the results and the log, never depend on the
-backend or on how many workers it has.
+unended in the log). Every episode is the same, bit for bit, in any batch, so the
+results and the log never depend on the backend or on how many workers it has.
 """
 
 from __future__ import annotations
@@ -40,6 +41,24 @@ class EpisodeSpec:
     """the episode's number in its evaluation (its seed is the evaluation's seed + index)."""
 
 
+def batches(specs: Sequence[EpisodeSpec], parts: int) -> list[list[int]]:
+    """The spec numbers in batches, each run in one World (terl_rt.evaluation.play.batch_steps):
+    every run of consecutive specs with the same policy and the same Scenario object is
+    split into at most `parts` batches, its k-th spec going to batch k mod parts (so that
+    the episodes running at any time are close in spec order). Batches come in the order
+    of their first spec."""
+    out: list[list[int]] = []
+    start = 0
+    for number in range(1, len(specs) + 1):
+        if number < len(specs) and specs[number].policy == specs[start].policy \
+                and specs[number].scenario is specs[start].scenario:
+            continue
+        group = range(start, number)
+        out += [list(group[part::parts]) for part in range(min(parts, len(group)))]
+        start = number
+    return out
+
+
 Deliver = Callable[[str, int, Any], None]
 """deliver(kind, spec number, payload): ("step", i, StepRecord) or ("end", i, EpisodeMetrics)."""
 
@@ -53,13 +72,14 @@ class Backend(Protocol):
     """Where episodes run."""
 
     workers: int
-    """episodes run at the same time."""
+    """batches run at the same time (`batches(specs, workers)`)."""
 
     def run(self, policies: Sequence[OnnxPolicy], specs: Sequence[EpisodeSpec], record: bool,
             deliver: Deliver) -> None:
-        """Run every spec with `policies[spec.policy]` and call `deliver` in this thread for
-        each message as it arrives (steps only when `record`). Returns once every spec has
-        ended; interrupted or failed, it first delivers what has already arrived, then raises."""
+        """Run every spec with `policies[spec.policy]`, in the batches of `batches(specs,
+        workers)`, and call `deliver` in this thread for each message as it arrives (steps
+        only when `record`). Returns once every spec has ended; interrupted or failed, it
+        first delivers what has already arrived, then raises."""
 
     def close(self) -> None:
         """Give back what the backend holds (a Ray instance it started)."""

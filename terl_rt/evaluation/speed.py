@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import resource
 import time
 from collections.abc import Sequence
 from contextlib import ExitStack
@@ -13,6 +14,8 @@ import numpy as np
 
 from terl_rt.evaluation.backends import open_backend
 from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.play import BATCH_ENVS
+from terl_rt.policy.flops import MATMUL_GFLOPS, OnnxMissing, flops_per_row
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.rollout import Rollout
@@ -79,60 +82,65 @@ def scaling_scenario(pursuers: int) -> Scenario:
     )
 
 
+POLICY_BATCHES = (1, 80, 1600)
+"""Rows a policy call is timed at: one robot's controller, every pursuer of a large-80 step,
+and the pursuers of 20 large-80 episodes batched (terl_rt.evaluation.play.BATCH_ENVS)."""
+
+
 @dataclass(frozen=True)
-class PolicySpeed:
-    """Time to choose the actions of all active pursuers: one policy call per step."""
+class PolicyLatency:
+    """Latency of one policy call of `batch` rows (real observations), over `calls` calls."""
 
     policy: str
     scenario: str
-    pursuers: int
-    steps: int
-    """timed steps (policy calls)."""
-    rows_mean: float
-    """mean active pursuers per call (the batch the policy saw)."""
-    ms_per_step: float
-    """milliseconds per step: the policy's actions for every active pursuer, in one call."""
+    batch: int
+    """rows of each call."""
+    calls: int
     ms_p50: float
-    ms_p90: float
+    ms_p99: float
     us_per_pursuer: float
-    """microseconds per pursuer row (ms_per_step / rows_mean)."""
-    resets: int
-    """episodes restarted during the run (not timed)."""
+    """microseconds per row at the median (ms_p50 / batch)."""
+    mflop_per_row: float | None
+    """MFLOP of matrix products a row (terl_rt.policy.flops); None without onnx."""
+    gflops: float | None
+    """GFLOP/s of matrix products at the median call."""
+    matmul_share: float | None
+    """gflops over MATMUL_GFLOPS, the machine's fp32 matrix-multiply rate."""
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def policy_speed(policy, scenario: Scenario, steps: int, seed: int = 0, warmup: int = 5) -> PolicySpeed:
-    """Time `steps` action choices (after `warmup` untimed ones) on real observations:
-    the world of `Simulator(scenario, seed)` driven by the policy itself, restarted
-    untimed when an episode ends."""
-    rollout = Rollout(World(scenario, num_envs=1, seed=seed))
-    times, rows, resets = [], [], 0
-    for k in range(warmup + steps):
-        turn = rollout.turn()
-        resets += len(turn.restarted)
-        start = time.perf_counter()
-        actions = policy.act(turn.observation.rows(turn.rows))
-        elapsed = time.perf_counter() - start
-        if k >= warmup:
-            times.append(elapsed)
-            rows.append(len(turn.rows))
-        rollout.step(actions)
-    ms = 1e3 * np.array(times)
-    rows_mean = float(np.mean(rows))
-    return PolicySpeed(
-        policy=policy.name,
-        scenario=scenario.name,
-        pursuers=scenario.pursuers,
-        steps=steps,
-        rows_mean=rows_mean,
-        ms_per_step=float(ms.mean()),
-        ms_p50=float(np.percentile(ms, 50)),
-        ms_p90=float(np.percentile(ms, 90)),
-        us_per_pursuer=float(1e3 * ms.mean() / rows_mean),
-        resets=resets,
-    )
+def policy_latencies(policy, scenario: Scenario, batches: Sequence[int] = POLICY_BATCHES, calls: int = 100,
+                     seed: int = 0) -> list[PolicyLatency]:
+    """Time `calls` policy calls at each batch size of `batches` (rows of the observations of
+    `World(scenario, ceil(max(batches) / N), seed)` after reset), the sizes taken in turn so
+    that a load that drifts meets them alike, one untimed call of each first; the FLOPs a row
+    of each batch are counted where onnx is installed."""
+    world = World(scenario, num_envs=math.ceil(max(batches) / scenario.pursuers), seed=seed)
+    observation = world.reset()
+    inputs = {batch: observation.rows(np.arange(batch)) for batch in batches}
+    try:
+        mflop = {batch: flops_per_row(policy, inputs[batch]) / 1e6 for batch in batches}
+    except OnnxMissing:
+        mflop = dict.fromkeys(batches)
+    times: dict[int, list[float]] = {batch: [] for batch in batches}
+    for call in range(calls + 1):
+        for batch in batches:
+            start = time.perf_counter()
+            policy.evaluate(inputs[batch])
+            if call:
+                times[batch].append(time.perf_counter() - start)
+    rows = []
+    for batch in batches:
+        p50, p99 = (float(v) for v in 1e3 * np.percentile(times[batch], [50, 99]))
+        gflops = None if mflop[batch] is None else mflop[batch] * batch / p50  # MFLOP / ms
+        rows.append(PolicyLatency(
+            policy=policy.name, scenario=scenario.name, batch=batch, calls=calls, ms_p50=p50, ms_p99=p99,
+            us_per_pursuer=1e3 * p50 / batch, mflop_per_row=mflop[batch], gflops=gflops,
+            matmul_share=None if gflops is None else gflops / MATMUL_GFLOPS,
+        ))
+    return rows
 
 
 @dataclass(frozen=True)
@@ -152,6 +160,11 @@ class BackendSpeed:
     """episodes / run_s."""
     per_episode: tuple[EpisodeMetrics, ...] = field(repr=False)
     """every episode's metrics, scenario by scenario (to check that backends agree)."""
+    envs: int = BATCH_ENVS
+    """episodes a batch ran at once (1: each alone, one policy call a step for its pursuers)."""
+    cpu_s: float = math.nan
+    """s: CPU time of the best run, this process and the worker processes it waited for (a
+    Ray backend's workers are not counted); less sensitive than run_s to a loaded machine."""
 
     def to_dict(self) -> dict:
         return {key: value for key, value in asdict(self).items() if key != "per_episode"}
@@ -159,29 +172,37 @@ class BackendSpeed:
 
 def backend_speeds(policy, scenarios: Sequence[Scenario], episodes: int, seed: int, workers: int,
                    backends: Sequence[str] = ("local", "ray"), repeat: int = 1,
-                   max_steps: int | None = None) -> list[BackendSpeed]:
-    """Open each backend with `workers` workers (a Ray backend starts its own local
-    instance), then evaluate `policy` on each scenario in turn (`episodes` each, episode k
-    with seed + k) on one backend after the other, `repeat` rounds, so that a load that
-    drifts meets them alike; each backend's best round counts. Closing is not timed."""
+                   max_steps: int | None = None, envs: Sequence[int] = (BATCH_ENVS,)) -> list[BackendSpeed]:
+    """Open each backend with `workers` workers for each batch size of `envs` (a Ray
+    backend starts its own local instance), then evaluate `policy` on each scenario in turn
+    (`episodes` each, episode k with seed + k) on one after the other, `repeat` rounds, so
+    that a load that drifts meets them alike; each one's best round counts. Closing is not
+    timed. Rows come backend by backend, batch sizes within."""
+    runs = [(name, size) for name in backends for size in envs]
     with ExitStack() as stack:
         opened, start_s = {}, {}
-        for name in backends:
+        for run in runs:
             start = time.perf_counter()
-            opened[name] = stack.enter_context(open_backend(name, workers))
-            start_s[name] = time.perf_counter() - start
-        best = dict.fromkeys(backends, math.inf)
+            opened[run] = stack.enter_context(open_backend(run[0], workers, envs=run[1]))
+            start_s[run] = time.perf_counter() - start
+        best = dict.fromkeys(runs, (math.inf, math.nan))
         per_episode = {}
         for _ in range(repeat):
-            for name in backends:
-                start = time.perf_counter()
-                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[name])
+            for run in runs:
+                start, cpu = time.perf_counter(), _cpu_s()
+                results = [evaluate_policy(policy, scenario, episodes, seed, max_steps=max_steps, backend=opened[run])
                            for scenario in scenarios]
-                best[name] = min(best[name], time.perf_counter() - start)
-                per_episode[name] = tuple(m for result in results for m in result.per_episode)
+                best[run] = min(best[run], (time.perf_counter() - start, _cpu_s() - cpu))
+                per_episode[run] = tuple(m for result in results for m in result.per_episode)
     total = episodes * len(scenarios)
     return [
-        BackendSpeed(backend=name, workers=workers, episodes=total, start_s=start_s[name], run_s=best[name],
-                     episodes_per_s=total / best[name], per_episode=per_episode[name])
-        for name in backends
+        BackendSpeed(backend=run[0], workers=workers, episodes=total, start_s=start_s[run], run_s=best[run][0],
+                     episodes_per_s=total / best[run][0], per_episode=per_episode[run], envs=run[1], cpu_s=best[run][1])
+        for run in runs
     ]
+
+
+def _cpu_s() -> float:
+    """s: CPU time (user + system) of this process and of the children it has waited for."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime

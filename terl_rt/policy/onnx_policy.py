@@ -2,7 +2,7 @@
 
 The contract (policy.md section 3) is checked in `terl_rt.policy.contract`; this module
 opens the file with onnxruntime, refuses models that break the contract, checks
-observations before they reach the model, and runs every row in one call.
+observations before they reach the model, and runs the rows in calls of at most CALL_ROWS.
 """
 
 from __future__ import annotations
@@ -313,7 +313,9 @@ class OnnxPolicy:
     def evaluate(self, observation: Observation | Mapping[str, np.ndarray]) -> PolicyOutput:
         """Q-values, target weights and greedy actions for every row of `observation`.
 
-        All rows go to onnxruntime in one call, leading dims flattened and restored.
+        The rows go to onnxruntime in calls of at most CALL_ROWS rows, leading dims
+        flattened and restored; a row's outputs are the same, bit for bit, whatever rows
+        share its call.
         Raises ValueError for an observation that breaks the layout (see
         `observation_inputs`).
         """
@@ -329,11 +331,11 @@ class OnnxPolicy:
                 actions=np.zeros(leading, np.int64),
             )
 
-        feed = {
-            name: np.ascontiguousarray(array.reshape((rows,) + array.shape[len(leading):]))
-            for name, array in inputs.items()
-        }
-        results = self._session.run(self._output_names, feed)
+        flat = {name: array.reshape((rows,) + array.shape[len(leading):]) for name, array in inputs.items()}
+        results = [np.concatenate(parts) for parts in zip(*(
+            self._run({name: array[part] for name, array in flat.items()})
+            for part in _calls(rows)
+        ))]
         q_values = self._checked_output("q_values", results[0], (rows, NUM_PURSUER_ACTIONS))
         target_weights = None
         if self.has_target_weights:
@@ -345,6 +347,17 @@ class OnnxPolicy:
             target_weights=target_weights,
             actions=actions.reshape(leading),
         )
+
+    def _run(self, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """One onnxruntime call on `feed`'s rows. A single row goes in twice: onnxruntime's
+        one-row kernels round differently from its batched ones, and a row's result must not
+        depend on the rows beside it (an episode evaluated alone or batched with others
+        decides the same, bit for bit)."""
+        rows = len(feed["ego"])
+        if rows == 1:
+            feed = {name: np.concatenate([array, array]) for name, array in feed.items()}
+        feed = {name: np.ascontiguousarray(array) for name, array in feed.items()}
+        return [result[:rows] for result in self._session.run(self._output_names, feed)]
 
     def act(self, observation: Observation | Mapping[str, np.ndarray]) -> np.ndarray:
         """Greedy pursuer actions [...] int64 for observations with leading shape `...`."""
@@ -363,6 +376,19 @@ class OnnxPolicy:
                 f"the contract says float32 {list(shape)}"
             )
         return value
+
+
+CALL_ROWS = 128
+"""rows of one onnxruntime call at most: a larger batch goes in near-equal calls of up to
+this many rows, whose activations stay in the cores' caches (per row 1,600 rows in one call
+took about 1.25x the CPU time of 128-row calls, large-80, one thread, measured under load)."""
+
+
+def _calls(rows: int) -> list[slice]:
+    """The rows [0, rows) cut into ceil(rows / CALL_ROWS) near-equal consecutive calls."""
+    count = max(1, math.ceil(rows / CALL_ROWS))
+    bounds = [rows * k // count for k in range(count + 1)]
+    return [slice(bounds[k], bounds[k + 1]) for k in range(count)]
 
 
 def policy_info(policy: OnnxPolicy) -> dict[str, Any]:

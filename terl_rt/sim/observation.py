@@ -8,6 +8,7 @@ this module defines that layout (names, feature widths, slots), and the ONNX con
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -72,6 +73,11 @@ class Observation:
     def as_inputs(self) -> dict[str, np.ndarray]:
         """The ONNX contract inputs by name (INPUT_NAMES, the names of their fields here)."""
         return {name: getattr(self, name) for name in INPUT_NAMES}
+
+    def take(self, index: np.ndarray) -> Observation:
+        """The entries at `index` [K] int of the first leading axis: the environments of
+        observations with leading shape [B, N] ([K, N] out), the rows of [R] ones ([K] out)."""
+        return Observation(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
 
     def rows(self, index: np.ndarray) -> Observation:
         """The rows at flat indices `index` [R] (b * N + n) of observations with leading

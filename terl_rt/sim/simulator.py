@@ -37,16 +37,17 @@ class StepInfo:
     """the step limit was reached first."""
 
     @staticmethod
-    def of(result: StepResult) -> StepInfo:
+    def of(result: StepResult, env: int = 0) -> StepInfo:
+        """Environment `env`'s part of a batch's step."""
         return StepInfo(
-            reward=result.reward[0],
-            reward_terms={name: result.reward_terms[0, :, i] for i, name in enumerate(REWARD_TERMS)},
-            collided=result.collided[0],
-            captured=result.captured[0],
-            pursuer_target=result.pursuer_target[0],
-            evader_actions=result.evader_actions[0],
-            terminated=bool(result.terminated[0]),
-            truncated=bool(result.truncated[0]),
+            reward=result.reward[env],
+            reward_terms={name: result.reward_terms[env, :, i] for i, name in enumerate(REWARD_TERMS)},
+            collided=result.collided[env],
+            captured=result.captured[env],
+            pursuer_target=result.pursuer_target[env],
+            evader_actions=result.evader_actions[env],
+            terminated=bool(result.terminated[env]),
+            truncated=bool(result.truncated[env]),
         )
 
 

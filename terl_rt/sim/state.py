@@ -86,6 +86,10 @@ class WorldState:
     def copy(self) -> WorldState:
         return WorldState(**{f.name: getattr(self, f.name).copy() for f in dataclasses.fields(self)})
 
+    def take(self, envs: np.ndarray) -> WorldState:
+        """A new state of the environments `envs` [K] int, in that order (copies)."""
+        return WorldState(**{f.name: getattr(self, f.name)[envs] for f in dataclasses.fields(self)})
+
     def assign(self, env_mask: np.ndarray, other: WorldState) -> None:
         """Overwrite the environments selected by `env_mask` [B] bool with `other`'s rows."""
         for f in dataclasses.fields(self):

@@ -155,6 +155,34 @@ class World:
         children = np.random.SeedSequence(self.seed).spawn(self.num_envs)
         self._rngs = [np.random.default_rng(child) for child in children]
 
+    def reseed(self, envs: np.ndarray, seeds: np.ndarray) -> None:
+        """Give environments `envs` [K] int the generators that environment 0 of a world
+        seeded with `seeds` [K] int has: the next reset of env k starts the episode that
+        `Simulator(scenario, seed=seeds[k]).reset()` starts."""
+        envs, seeds = np.asarray(envs), np.asarray(seeds)
+        if envs.shape != seeds.shape or envs.ndim != 1:
+            raise ValueError(f"reseed: envs and seeds must be [K] alike, got shapes {envs.shape} and {seeds.shape}")
+        for env, seed in zip(envs.tolist(), seeds.tolist()):
+            self._rngs[env] = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+
+    def keep(self, envs: np.ndarray) -> None:
+        """Keep only environments `envs` [K] int (ascending, K >= 1) and drop the others:
+        the batch shrinks to K, environment envs[k] becoming k. What each kept environment
+        does next is unchanged, bit for bit."""
+        envs = np.asarray(envs)
+        if envs.ndim != 1 or envs.size < 1 or envs.dtype.kind not in "iu":
+            raise ValueError(f"keep: envs must be [K] int with K >= 1, got {envs.dtype} {envs.shape}")
+        if envs[0] < 0 or envs[-1] >= self.num_envs or np.any(np.diff(envs) <= 0):
+            raise ValueError(f"keep: envs must be ascending indices in [0, {self.num_envs}), got {envs.tolist()}")
+        if self.state is None:
+            raise RuntimeError("keep: call reset() first")
+        self.state = self.state.take(envs)
+        self.geometry = Geometry.of(self.state)  # positions only: the same as the rows kept
+        self.done = self.done[envs]
+        self.episode_return = self.episode_return[envs]
+        self._rngs = [self._rngs[env] for env in envs.tolist()]
+        self.num_envs = len(envs)
+
     # ------------------------------------------------------------------ reset
     def reset(self, env_mask: np.ndarray | None = None, seed: Seed = None) -> Observation:
         """Start new episodes in the environments of `env_mask` ([B] bool; None = all).
