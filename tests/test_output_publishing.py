@@ -10,11 +10,10 @@ import threading
 from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
+from one_line import assert_one_error, invoke
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.cli.main import cli
 from terl_rt.files import OutputExists, atomic_output, atomic_outputs, publish, temporary_beside
 from terl_rt.logs.reader import EpisodeLogReader
 
@@ -29,22 +28,9 @@ def files(tmp_path_factory) -> dict[str, Path]:
     return {"folder": folder, "policy": write_test_policy(folder / "linear.onnx"), "scenario": scenario}
 
 
-def invoke(*args):
-    return CliRunner().invoke(cli, [str(arg) for arg in args])
-
-
 def eval_args(files, *extra) -> list[str]:
     return ["eval", "--policy", str(files["policy"]), "--scenario-file", str(files["scenario"]), "--episodes", "2",
             *map(str, extra)]
-
-
-def assert_one_error(result, *words):
-    assert result.exit_code == 2, result.output
-    errors = [line for line in result.stderr.splitlines() if line.startswith("Error: ")]
-    assert len(errors) == 1 and result.stderr.endswith(errors[0] + "\n"), result.stderr
-    for word in words:
-        assert word in errors[0], errors[0]
-    assert "Traceback" not in result.output
 
 
 def leftovers(folder: Path) -> list[str]:
