@@ -17,8 +17,9 @@ import shutil
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import BinaryIO
 
-__all__ = ["OutputExists", "atomic_output", "atomic_outputs", "publish", "temporary_beside"]
+__all__ = ["NamingFile", "OutputExists", "atomic_output", "atomic_outputs", "publish", "temporary_beside"]
 
 
 class OutputExists(FileExistsError):
@@ -71,6 +72,29 @@ def _exists(path: Path) -> OutputExists:
 def _named(error: OSError, target: Path) -> OSError:
     """`error` with `target` as its file name (same type, errno and reason)."""
     return type(error)(error.errno, error.strerror or str(error), str(target))
+
+
+class NamingFile:
+    """A binary file object written under a temporary name whose write and flush errors
+    (a full disk, a file too large) name `path`, the file the user asked for."""
+
+    def __init__(self, handle: BinaryIO, path: str | os.PathLike):
+        self._handle, self._path = handle, Path(path)
+
+    def write(self, data) -> int:
+        return self._naming(self._handle.write, data)
+
+    def flush(self) -> None:
+        self._naming(self._handle.flush)
+
+    def _naming(self, call, *args):
+        try:
+            return call(*args)
+        except OSError as error:
+            raise _named(error, self._path) from error
+
+    def __getattr__(self, name: str):
+        return getattr(self._handle, name)
 
 
 @contextmanager

@@ -20,7 +20,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from terl_rt import __version__
-from terl_rt.files import publish, temporary_beside
+from terl_rt.files import NamingFile, publish, temporary_beside
 from terl_rt.logs.format import (
     LOG_FORMAT,
     LOG_VERSION,
@@ -129,7 +129,7 @@ class EpisodeLogWriter:
         self._replace = replace
         self.steps_written = 0
         """steps written so far, all episodes."""
-        self._file = open(self.staging_path or self.path, "wb" if replace or staged else "xb")
+        self._file = NamingFile(open(self.staging_path or self.path, "wb" if replace or staged else "xb"), self.path)
         self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
         self._mcap.start(profile="", library=f"terl-rt {__version__}")
         self._channels: dict[str, int] = {}
