@@ -272,6 +272,34 @@ def test_policy_metadata_that_is_not_text_or_nests_too_deep_is_one_line(tmp_path
     assert_one_error(result, str(path), words)
 
 
+METADATA_KEYS = ["terl.contract", "terl.model", "terl.hidden", "terl.pursuer_actions", "terl.trained_on"]
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(key=st.sampled_from(METADATA_KEYS), value=st.one_of(
+    st.binary(min_size=1, max_size=24), st.text(min_size=1, max_size=24).map(lambda text: text.encode("utf-8", "surrogatepass")),
+    st.integers(1, 50_000).map(lambda depth: b"[" * depth),
+))
+def test_any_policy_metadata_value_loads_or_is_a_contract_error(tmp_path, key, value):
+    try:
+        OnnxPolicy(_policy_with_metadata(tmp_path / "any.onnx", key, value))
+    except ContractError as error:
+        assert "\n" not in str(error).strip()
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(st.binary(min_size=11, max_size=11))
+def test_any_bytes_in_a_log_s_metadata_read_or_are_an_episode_log_error(files, tmp_path, value):
+    damaged = tmp_path / "damaged.mcap"
+    _rewrite(files["log"], b"linear-test", value, damaged)
+    try:
+        reader = EpisodeLogReader(damaged)
+    except EpisodeLogError as error:
+        assert str(damaged) in str(error)
+        return
+    assert reader.policy["name"] == value.decode()
+
+
 def _rewrite(log, old: bytes, new: bytes, to) -> None:
     data = log.read_bytes()
     assert len(old) == len(new) and old in data
