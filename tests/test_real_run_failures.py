@@ -6,6 +6,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +19,7 @@ from hypothesis import strategies as st
 from mcap.writer import Writer
 from one_line import assert_one_error, invoke
 from onnx_models import random_observation, write_constant_policy, write_failing_policy, write_test_policy
+from processes import wait_for_log
 
 from terl_rt.logs.format import EpisodeLogError, decode
 from terl_rt.logs.reader import ZEROED_TAIL_BYTES, EpisodeLogReader
@@ -25,6 +31,7 @@ from terl_rt.sim.evader import ConstantEvader
 from terl_rt.sim.scenario import Scenario, ScenarioError
 from terl_rt.sim.world import World
 
+ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -115,7 +122,6 @@ def _shared_policy() -> OnnxPolicy:
     """One linear test policy for every hypothesis example (written once, to a temporary folder)."""
     if not _POLICY:
         import tempfile
-        from pathlib import Path
 
         _POLICY.append(OnnxPolicy(write_test_policy(Path(tempfile.mkdtemp()) / "linear.onnx")))
     return _POLICY[0]
@@ -365,3 +371,26 @@ def test_bench_sim_says_what_it_will_run_and_shows_progress():
     assert result.exit_code == 0, result.output
     assert "placing 2 world(s) of small-11 (11 pursuers each), then 5 untimed and 3 timed batch steps" in result.stderr
     assert "bench sim" in result.stderr and "env-steps/s" in result.stdout
+
+
+# --- stopping a run of one process (the workers' part comes with the batched evaluator) --
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_or_sighup_of_a_logged_run_keeps_its_complete_steps(files, tmp_path, signum):
+    log = tmp_path / "stopped.mcap"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.Popen(
+        [sys.executable, "-m", "terl_rt", "eval", "--policy", str(files["good"]), "--scenario", "small-11",
+         "--episodes", "6", "--max-steps", "400", "--log", str(log)],
+        cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    try:
+        wait_for_log(process, log, size=60_000)
+        process.send_signal(signum)
+        assert process.wait(timeout=30) != 0
+    finally:
+        process.kill()
+    reader = EpisodeLogReader(log)
+    assert reader.truncated and reader.episodes[0].steps > 0
+    assert verify(log, 0).ok
