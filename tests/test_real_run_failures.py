@@ -59,6 +59,20 @@ def test_a_policy_failing_inside_onnxruntime_names_the_policy_the_batch_and_the_
     assert "\n" not in message and "onnxruntime_src" not in message
 
 
+def test_an_allocation_onnxruntime_cannot_make_says_the_policy_ran_out_of_memory(files, monkeypatch):
+    policy = OnnxPolicy(files["good"])
+
+    class Session:  # what onnxruntime raises when its arena cannot grow
+        def run(self, names, feed):
+            raise RuntimeError("[ONNXRuntimeError] : 6 : RUNTIME_EXCEPTION : Non-zero status code returned while "
+                               "running MatMul node. Name:'' Status Message: Failed to allocate memory for requested "
+                               "buffer of size 68719476736")
+
+    monkeypatch.setattr(policy, "_session", Session())
+    with pytest.raises(PolicyRunError, match=r"ran out of memory inside onnxruntime in a MatMul node on a batch of 3 rows"):
+        policy.act(random_observation((3,)))
+
+
 @pytest.mark.parametrize("command", [
     ("eval", "--scenario", "small-11", "--episodes", "1"),
     ("sweep", "--scenario", "small-11", "--episodes", "1", "--out", "{folder}/sweep"),
