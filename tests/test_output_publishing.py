@@ -113,6 +113,24 @@ def test_an_empty_output_path_is_refused(files, option):
     assert_one_error(invoke(*eval_args(files, option, "")), option, "empty")
 
 
+@pytest.mark.parametrize("command", ["sweep", "report"])
+def test_an_empty_output_folder_is_refused(files, command):
+    assert_one_error(invoke(command, "--policy", files["policy"], "--episodes", "1", "--out", " "), "--out", "empty")
+
+
+def test_publishing_where_hard_links_are_refused_claims_the_name_exclusively(tmp_path, monkeypatch):
+    def no_links(source, target):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    target = tmp_path / "out.md"
+    with atomic_output(target) as staging:
+        staging.write_text("first\n")
+    with pytest.raises(OutputExists), atomic_output(target) as staging:
+        staging.write_text("second\n")
+    assert target.read_text() == "first\n" and leftovers(tmp_path) == []
+
+
 def test_an_output_in_a_folder_that_takes_no_file_is_refused_before_the_first_episode(files):
     # /proc takes no new file, even for root (for whom permission bits are no bar).
     result = invoke(*eval_args(files, "--csv", "/proc/terl-rt-test.csv"))

@@ -72,6 +72,17 @@ def check_output(
     return out
 
 
+def output_folder(path: str, option: str = "--out") -> Path:
+    """The folder `option` names for a command's files (checked one by one with
+    `check_output`); BadInput for an empty path or a file."""
+    if not path.strip():
+        raise BadInput(f"{option} is empty; name a folder")
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise BadInput(f"{option} {path} is a file; name a folder")
+    return folder
+
+
 def _check_writable(out: Path, option: str) -> None:
     """BadInput unless a file can be made in `out`'s folder (permissions, a read-only or
     full filesystem): said before the run, not after it."""

@@ -30,7 +30,7 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation import comparison
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
@@ -130,9 +130,7 @@ def report_command(
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
         raise BadInput(str(error)) from error
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInput(f"--out {out} is a file; name a folder")
+    out_dir = output_folder(out)
     files = policy_files(policy_paths)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,

@@ -12,7 +12,6 @@ import click
 
 from terl_rt.cli.eval import terl_rt_version
 from terl_rt.cli.options import (
-    BadInput,
     address_option,
     backend_option,
     episodes_option,
@@ -30,7 +29,7 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation.sweep import TABLE_COLUMNS, Sweep, run_sweep, sweep_json, sweep_markdown, table_rows
 from terl_rt.files import atomic_output
 
@@ -98,9 +97,7 @@ def sweep_command(
       terl-rt sweep --policy policies/ --suite paper --episodes 20 --workers 2 --out sweep --force
       terl-rt sweep --policy policies/ --suite paper --backend ray --address auto --out sweep
     """
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInput(f"--out {out} is a file; name a folder")
+    out_dir = output_folder(out)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policies = open_policies(policy_paths, threads=policy_threads(backend, workers, threads))
     inputs = [("--policy", policy.path) for policy in policies] + [("--scenario-file", scenario_file)]
