@@ -114,13 +114,15 @@ class TerlParallelEnv(ParallelEnv):
     ) -> None:
         if isinstance(scenario, str):
             scenario = Scenario.preset(scenario)
+        if not isinstance(scenario, Scenario):
+            raise TypeError(f"scenario must be a Scenario or a preset name, got {_shown(scenario)}")
         if max_steps is not None:
-            scenario = scenario.replace(max_steps=int(max_steps))
+            scenario = scenario.replace(max_steps=_integer("max_steps", max_steps))
         if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+            raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r:.60}")
         self.scenario = scenario
         self.render_mode = render_mode
-        self.render_size = int(render_size)
+        self.render_size = _render_size(render_size)
         self.possible_agents = [f"pursuer_{i}" for i in range(scenario.pursuers)]
         self.agents: list[str] = []
         self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
@@ -181,7 +183,7 @@ class TerlParallelEnv(ParallelEnv):
             raise ValueError(f"step: unknown agents {unknown}")
         chosen = np.zeros((1, self.scenario.pursuers), np.int64)
         for agent in live:
-            chosen[0, self._index[agent]] = int(actions[agent])
+            chosen[0, self._index[agent]] = _action(agent, actions[agent])
         observation, result = self._world.step(chosen)
         if self.render_mode:
             self._history.append(snapshot(self._world.state, 0))
@@ -252,6 +254,40 @@ class TerlParallelEnv(ParallelEnv):
             "obstacles": observation.obstacles[0, i],
             "mask": observation.mask[0, i],
         }
+
+
+def _shown(value: Any) -> str:
+    """`value`'s type and repr, cut to 60 characters: what an error message shows of it."""
+    return f"{type(value).__name__} {value!r:.60}"
+
+
+def _integer(name: str, value: Any) -> int:
+    """`value` as an int when it is one (a Python or NumPy integer, not a bool); TypeError
+    naming `name` otherwise: 2.5, "3" and True are mistakes, not integers."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {_shown(value)}")
+    return int(value)
+
+
+def _action(agent: str, value: Any) -> int:
+    """An agent's action: an integer in [0, NUM_PURSUER_ACTIONS); TypeError or ValueError
+    naming the agent and the value otherwise."""
+    action = _integer(f"step: the action of {agent}", value)
+    if not 0 <= action < NUM_PURSUER_ACTIONS:
+        raise ValueError(f"step: the action of {agent} must lie in [0, {NUM_PURSUER_ACTIONS}), got {action!r:.60}")
+    return action
+
+
+def _render_size(value: Any) -> int:
+    """render_size in px, within `terl_rt.logs.render.SIZE_RANGE`."""
+    from terl_rt.logs.render import SIZE_RANGE  # Pillow: imported here, not with this module
+
+    size = _integer("render_size", value)
+    if not SIZE_RANGE[0] <= size <= SIZE_RANGE[1]:
+        raise ValueError(f"render_size must lie in [{SIZE_RANGE[0]}, {SIZE_RANGE[1]}] px, got {size!r:.60}")
+    return size
 
 
 def state_size(scenario: Scenario) -> int:

@@ -244,6 +244,23 @@ def write_constant_policy(
     return _save(_build(spec), path)
 
 
+def write_failing_policy(path: str | os.PathLike) -> Path:
+    """Write a policy that meets the contract and loads, but whose q-values [B, 9] pass
+    through a Reshape to [B * B, -1]: onnxruntime fails on any batch of 2 to 8 rows (9 B
+    values cannot make B * B rows). Returns the path."""
+    model = _build(_ModelSpec(weights=LinearWeights.from_seed(0), metadata=contract_metadata()))
+    cast = next(node for node in model.graph.node if "q_values" in node.output)
+    cast.output[0] = "q_any_batch"
+    model.graph.node.extend([
+        helper.make_node("Shape", ["ego"], ["rows"], start=0, end=1),
+        helper.make_node("Mul", ["rows", "rows"], ["rows_squared"]),
+        _const("rest", np.array([-1], np.int64)),
+        helper.make_node("Concat", ["rows_squared", "rest"], ["squared_shape"], axis=0),
+        helper.make_node("Reshape", ["q_any_batch", "squared_shape"], ["q_values"]),
+    ])
+    return _save(model, path)
+
+
 def write_broken_policy(path: str | os.PathLike, defect: str) -> Path:
     """Write the linear test policy (seed 0) with one contract defect; see `DEFECTS`:
 

@@ -98,6 +98,7 @@ def test_a_full_disk_while_logging_is_one_line_and_keeps_the_complete_steps(file
     assert result.exit_code == 2, result.output
     errors = [line for line in result.stderr.splitlines() if line.startswith("Error:")]
     assert len(errors) == 1 and result.stderr.endswith(errors[0] + "\n") and "No space left on device" in errors[0]
+    assert errors[0] == f"Error: {log}: No space left on device"  # the user's path, not the temporary file
     assert "Traceback" not in result.output
     reader = EpisodeLogReader(log)
     assert reader.truncated and reader.episodes[0].steps > 0

@@ -11,13 +11,13 @@ scenario has, so curriculum stages share one buffer. A row takes about 1 KB with
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
+from terl_rt.files import atomic_output
 from terl_rt.policy.contract import EGO_FEATURES, EVADER_FEATURES, OBSTACLE_FEATURES, TEAMMATE_FEATURES
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.observation import OBSTACLE_SLOTS, TEAMMATE_SLOTS
@@ -143,10 +143,8 @@ class ReplayBuffer:
             arrays[f"next_{key}"] = self.next_observations[key][order]
         for name in ("actions", "rewards", "dones", "discounts"):
             arrays[name] = getattr(self, name)[order]
-        path = Path(path)
-        temporary = path.with_name(path.name + ".tmp.npz")
-        np.savez(temporary, **arrays)
-        os.replace(temporary, path)
+        with atomic_output(path, replace=True) as temporary, open(temporary, "wb") as handle:
+            np.savez(handle, **arrays)  # a handle: savez adds no .npz to it
 
     def load(self, path: str | Path) -> None:
         """Replace the contents with the rows saved at `path` (the newest `capacity` of them).

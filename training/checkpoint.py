@@ -14,7 +14,6 @@ Nothing here unpickles arbitrary objects.
 from __future__ import annotations
 
 import json
-import os
 import random
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
 from training.config import Config, NetworkConfig
 from training.export import export_onnx
@@ -101,10 +101,9 @@ def restore_rng_states(states: dict[str, Any], rng: np.random.Generator) -> None
 
 
 def _replace_file(path: Path, write) -> None:
-    """Write through a temporary name, then rename: a crash leaves the old file whole."""
-    temporary = path.with_name(path.name + ".tmp")
-    write(temporary)
-    os.replace(temporary, path)
+    """`write(temporary)`, then rename it over `path`: a crash leaves the old file whole."""
+    with atomic_output(path, replace=True) as temporary:
+        write(temporary)
 
 
 def save_checkpoint(

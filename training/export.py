@@ -21,6 +21,7 @@ import onnxruntime as ort
 import torch
 from torch import nn
 
+from terl_rt.files import atomic_output
 from terl_rt.policy.contract import (
     CONTRACT_VERSION,
     INPUT_NAMES,
@@ -201,17 +202,15 @@ def export_onnx(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     props = merged_metadata(model, metadata)
-    partial = path.with_name(path.name + ".partial")  # moved to `path` once it passes
     was_training = model.training
     model.eval()
     try:
-        with torch.no_grad():
-            _trace_to_onnx(model, partial, opset)
-        _write_metadata(partial, props)
-        check_parity(model, partial)
-        partial.replace(path)
+        with atomic_output(path, replace=True) as partial:  # published at `path` once it passes
+            with torch.no_grad():
+                _trace_to_onnx(model, partial, opset)
+            _write_metadata(partial, props)
+            check_parity(model, partial)
     finally:
-        partial.unlink(missing_ok=True)
         model.train(was_training)
     return path
 

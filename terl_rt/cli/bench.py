@@ -28,6 +28,7 @@ from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.speed import (
     POLICY_BATCHES,
     SCALING_PURSUERS,
+    SIM_WARMUP,
     backend_speeds,
     policy_latencies,
     scaling_scenario,
@@ -69,7 +70,15 @@ def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
       terl-rt bench sim
       terl-rt bench sim --scenario large-80 --envs 16 --steps 200 --json
     """
-    result = simulator_speed(scenario, steps, num_envs=num_envs, seed=seed)
+    # A large batch of a large world takes minutes a step: say what comes, then show it coming.
+    click.echo(
+        f"placing {num_envs} world(s) of {scenario.name} ({scenario.pursuers} pursuers each), then "
+        f"{SIM_WARMUP} untimed and {steps} timed batch steps", err=True,
+    )
+    with click.progressbar(
+        length=SIM_WARMUP + steps, label="bench sim", file=sys.stderr, show_pos=True, show_eta=True,
+    ) as bar:
+        result = simulator_speed(scenario, steps, num_envs=num_envs, seed=seed, progress=bar.update)
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return

@@ -33,6 +33,7 @@ from terl_rt.cli.options import (
 from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA, ScenarioResult
 from terl_rt.evaluation.stats import format_interval
+from terl_rt.files import atomic_output
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.contract import META_CONTRACT, META_TRAINING_STEPS
 from terl_rt.policy.onnx_policy import policy_info
@@ -137,17 +138,18 @@ def eval_command(
       terl-rt eval --scenario-file my-world.json --json
     """
     inputs = [("--policy", policy_path), ("--scenario-file", scenario_file)]
-    if log_path:
+    if log_path is not None:
         check_output(log_path, "--log", inputs, force)
-    if csv_path:
+    if csv_path is not None:
         check_output(csv_path, "--csv", inputs + [("--log", log_path)], force)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
-    if log_path:  # the default policy too
-        check_output(log_path, "--log", [("--policy", policy.path)], force)
+    for option, path in (("--log", log_path), ("--csv", csv_path)):
+        if path is not None:  # the default policy too
+            check_output(path, option, [("--policy", policy.path)], force)
     info = policy_info(policy)
     with run_backend(backend, workers, address, threads) as runner:
-        log = EpisodeLogWriter(Path(log_path), info, staged=True) if log_path else None
+        log = EpisodeLogWriter(Path(log_path), info, staged=True, replace=force) if log_path else None
         try:
             results = evaluate_with_progress(
                 policy, scenarios, episodes, seed, max_steps=max_steps, log=log, backend=runner,
@@ -156,8 +158,7 @@ def eval_command(
             if log is not None:
                 log.close()
 
-    if csv_path:
-        write_csv(Path(csv_path), results, info)
+    # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({
             "terl_rt": terl_rt_version(),
@@ -166,12 +167,17 @@ def eval_command(
             "seed": seed,
             "scenarios": [result.to_dict(per_episode=True) for result in results],
         }))
+    else:
+        click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
+        click.echo(HEADER)
+        for result in results:
+            click.echo(_row(result))
+    if csv_path is not None:
+        with atomic_output(csv_path, replace=force) as staging:
+            write_csv(staging, results, info)
+    if as_json:
         return
-    click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
-    click.echo(HEADER)
-    for result in results:
-        click.echo(_row(result))
     if log is not None:
         click.echo(f"log: {log.path} ({log.episodes_written} episodes)")
-    if csv_path:
+    if csv_path is not None:
         click.echo(f"csv: {csv_path} ({sum(r.episodes for r in results)} episodes)")

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import importlib.resources
-import os
 
 import click
 
-from terl_rt.cli.outputs import check_output, force_option, temporary_name
+from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.files import atomic_output
 
 LAYOUT = ("terl_rt.logs", "foxglove-layout.json")
 """(package, resource) of the Foxglove layout installed with terl-rt."""
@@ -37,10 +37,6 @@ def layout_command(output: str, force: bool) -> None:
       terl-rt layout -o ~/layouts/terl.json --force
     """
     out = check_output(output, "-o", (), force)
-    staging = temporary_name(out)
-    try:
+    with atomic_output(out, replace=force) as staging:
         staging.write_bytes(layout_bytes())
-        os.replace(staging, out)
-    finally:
-        staging.unlink(missing_ok=True)
     click.echo(f"wrote {out}")

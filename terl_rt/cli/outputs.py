@@ -2,9 +2,10 @@
 
 Every command that writes checks its outputs before it starts work: an output that is
 one of the command's own inputs is refused even with --force; an existing output is
-refused unless --force; a missing folder is made. Outputs are written under a temporary
-name beside the target and renamed over it once complete (logs: at their first step),
-so a run that fails early leaves an earlier file untouched.
+refused unless --force; a missing folder is made and must take a file. Outputs are
+written through `terl_rt.files.atomic_output` (logs: published at their first step), so
+a run that fails early leaves an earlier file untouched and two runs on one path never
+replace each other silently.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import click
 
 from terl_rt.cli.options import BadInput
+from terl_rt.files import temporary_beside
 
 force_option = click.option(
     "--force", is_flag=True,
@@ -43,6 +45,8 @@ def check_output(
     inputs: (option, path) of the command's input files (None: not given). Raises
     BadInput when `path` is one of them, is a folder or a device, or exists without --force.
     """
+    if not str(path).strip():
+        raise BadInput(f"{option} is empty; name a file")
     out = Path(path)
     for name, given in inputs:
         if given is not None and same_file(out, given):
@@ -64,9 +68,29 @@ def check_output(
         raise BadInput(f"{option} {out}: cannot make its folder ({error.strerror or error})") from None
     if not out.parent.is_dir():
         raise BadInput(f"{option} {out}: {out.parent} is not a folder")
+    _check_writable(out, option)
     return out
 
 
-def temporary_name(path: Path) -> Path:
-    """A hidden name beside `path`, with the same suffix, to write before renaming."""
-    return path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+def output_folder(path: str, option: str = "--out") -> Path:
+    """The folder `option` names for a command's files (checked one by one with
+    `check_output`); BadInput for an empty path or a file."""
+    if not path.strip():
+        raise BadInput(f"{option} is empty; name a folder")
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise BadInput(f"{option} {path} is a file; name a folder")
+    return folder
+
+
+def _check_writable(out: Path, option: str) -> None:
+    """BadInput unless a file can be made in `out`'s folder (permissions, a read-only or
+    full filesystem): said before the run, not after it."""
+    probe = temporary_beside(out)
+    try:
+        with open(probe, "xb") as handle:
+            handle.write(b"\0")
+    except OSError as error:
+        raise BadInput(f"{option} {out}: cannot write in {out.parent} ({error.strerror or error})") from None
+    finally:
+        probe.unlink(missing_ok=True)

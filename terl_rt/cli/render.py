@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
 
 from terl_rt.cli.options import IntRange
-from terl_rt.cli.outputs import check_output, force_option, temporary_name
-from terl_rt.logs.render import FORMATS, RenderError, render
+from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.files import atomic_output
+from terl_rt.logs.render import FORMATS, SIZE_RANGE, RenderError, render
 
 
 @click.command("render")
@@ -22,7 +22,7 @@ from terl_rt.logs.render import FORMATS, RenderError, render
               help="Frames per second of an animation.")
 @click.option("--every", type=IntRange(min=1), default=None,
               help="Draw every K-th step (0.5 s each) [default: 1; a .gif keeps at most 200 frames].")
-@click.option("--size", type=IntRange(min=64, max=4096), default=640, show_default=True, help="Image width in px.")
+@click.option("--size", type=IntRange(min=SIZE_RANGE[0], max=SIZE_RANGE[1]), default=640, show_default=True, help="Image width in px.")
 @force_option
 def render_command(log: str, episode: int, output: str, fps: float, every: int | None, size: int, force: bool) -> None:
     """Render an episode: arena, obstacles, vortex cores with their rotation, pursuers
@@ -38,10 +38,6 @@ def render_command(log: str, episode: int, output: str, fps: float, every: int |
     if Path(output).suffix.lower() not in FORMATS:
         raise RenderError(f"{output}: unknown output format {Path(output).suffix or '(none)'!r}; use one of {', '.join(FORMATS)}")
     out = check_output(output, "-o", [("LOG", log)], force)
-    staging = temporary_name(out)
-    try:
+    with atomic_output(out, replace=force) as staging:
         render(log, staging, episode=episode, fps=fps, every=every, size=size)
-        os.replace(staging, out)
-    finally:
-        staging.unlink(missing_ok=True)
     click.echo(f"wrote {out}")

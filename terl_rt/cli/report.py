@@ -4,9 +4,8 @@ several policies: docs/comparison.md, .png and .json."""
 from __future__ import annotations
 
 import json
-import os
 import shlex
-import shutil
+from datetime import datetime, timezone
 from pathlib import Path
 import textwrap
 
@@ -31,7 +30,7 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation import comparison
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
@@ -45,6 +44,7 @@ from terl_rt.evaluation.report import (
     where_it_stands,
     write_report,
 )
+from terl_rt.files import atomic_outputs
 from terl_rt.policy.onnx_policy import policy_info
 
 def command_line(
@@ -130,9 +130,7 @@ def report_command(
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
         raise BadInput(str(error)) from error
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInput(f"--out {out} is a file; name a folder")
+    out_dir = output_folder(out)
     files = policy_files(policy_paths)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,
@@ -151,15 +149,8 @@ def report_command(
     with run_backend(backend, workers, address, threads) as runner:
         results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
     info = policy_info(policy)
-    staging = out_dir / f".results.{os.getpid()}.partial"
-    try:
-        written = write_report(results, info, staging, command)
-        paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
-        os.replace(written.figure, paths.figure)
-        os.replace(written.markdown, paths.markdown)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
+    paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
+    # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({
             "policy": policy_json(info),
@@ -168,10 +159,13 @@ def report_command(
             "goals": [check.to_dict() for check in goal_checks(results)],
             "files": {"markdown": str(paths.markdown), "figure": str(paths.figure)},
         }))
-        return
-    click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
-    click.echo(textwrap.fill(where_it_stands(results), width=100))
-    click.echo(f"wrote {paths.markdown} and {paths.figure}")
+    else:
+        click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
+        click.echo(textwrap.fill(where_it_stands(results), width=100))
+    with atomic_outputs(out_dir, (FIGURE_NAME, MARKDOWN_NAME), replace=force) as staging:
+        write_report(results, info, staging, command)
+    if not as_json:
+        click.echo(f"wrote {paths.markdown} and {paths.figure}")
 
 
 def compare_policies(
@@ -208,19 +202,17 @@ def compare_policies(
             click.echo(f"{method}: {policy.path}", err=True)
             results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
             runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
-    staging = out_dir / f".comparison.{os.getpid()}.partial"
-    try:
-        written = comparison.write_comparison(runs, staging, command)
-        data = json.loads(written.json.read_text())
-        for name in outputs:
-            os.replace(staging / name, out_dir / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
+    date = datetime.now(timezone.utc)
+    runs.sort(key=lambda run: comparison.paper_order(run.method))
+    data = comparison.comparison_dict(runs, command, date)
     paths = dict(zip(("markdown", "figure", "json"), (str(out_dir / name) for name in outputs)))
+    # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({**data, "files": paths}))
-        return
-    for check in data["claims"]:
-        click.echo(f"{check['verdict']:<19} {check['claim']}")
-    click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
+    else:
+        for check in data["claims"]:
+            click.echo(f"{check['verdict']:<19} {check['claim']}")
+    with atomic_outputs(out_dir, outputs, replace=force) as staging:
+        comparison.write_comparison(runs, staging, command, date)
+    if not as_json:
+        click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -13,7 +12,6 @@ import click
 
 from terl_rt.cli.eval import terl_rt_version
 from terl_rt.cli.options import (
-    BadInput,
     address_option,
     backend_option,
     episodes_option,
@@ -31,8 +29,9 @@ from terl_rt.cli.options import (
     threads_option,
     workers_option,
 )
-from terl_rt.cli.outputs import check_output, force_option, temporary_name
+from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation.sweep import TABLE_COLUMNS, Sweep, run_sweep, sweep_json, sweep_markdown, table_rows
+from terl_rt.files import atomic_output
 
 TABLE_FILES = ("sweep.json", "sweep.csv", "sweep.md")
 """What a sweep writes into --out: the full results (every episode), the table as CSV and as markdown."""
@@ -51,17 +50,13 @@ def table_texts(sweep: Sweep, header: dict) -> dict[str, str]:
     }
 
 
-def write_tables(texts: dict[str, str], out_dir: Path) -> list[Path]:
-    """Write each text into `out_dir` under a temporary name, renamed into place when complete."""
+def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) -> list[Path]:
+    """Write each text into `out_dir` whole (`atomic_output`); replace: replace existing files."""
     paths = []
     for name, text in texts.items():
         path = out_dir / name
-        staging = temporary_name(path)
-        try:
+        with atomic_output(path, replace) as staging:
             staging.write_text(text)
-            os.replace(staging, path)
-        finally:
-            staging.unlink(missing_ok=True)
         paths.append(path)
     return paths
 
@@ -102,9 +97,7 @@ def sweep_command(
       terl-rt sweep --policy policies/ --suite paper --episodes 20 --workers 2 --out sweep --force
       terl-rt sweep --policy policies/ --suite paper --backend ray --address auto --out sweep
     """
-    out_dir = Path(out)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadInput(f"--out {out} is a file; name a folder")
+    out_dir = output_folder(out)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
     policies = open_policies(policy_paths, threads=policy_threads(backend, workers, threads))
     inputs = [("--policy", policy.path) for policy in policies] + [("--scenario-file", scenario_file)]
@@ -118,11 +111,13 @@ def sweep_command(
             policies, scenarios, episodes, seed, runner, max_steps=max_steps, progress=lambda number, metrics: bar.update(1),
         )
     header = {"terl_rt": terl_rt_version(), "episodes": episodes, "seed": seed, "backend": backend}
-    paths = write_tables(table_texts(sweep, header), out_dir)
+    # The results reach the terminal first: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({**header, **sweep_json(sweep)}))
-        return
-    click.echo(f"{len(policies)} policies x {len(scenarios)} scenarios x {episodes} episodes (seed {seed}), "
-               f"{sweep.wall_s:.1f} s on {backend}")
-    click.echo(sweep_markdown(sweep), nl=False)
-    click.echo(f"wrote {', '.join(str(path) for path in paths)}")
+    else:
+        click.echo(f"{len(policies)} policies x {len(scenarios)} scenarios x {episodes} episodes (seed {seed}), "
+                   f"{sweep.wall_s:.1f} s on {backend}")
+        click.echo(sweep_markdown(sweep), nl=False)
+    paths = write_tables(table_texts(sweep, header), out_dir, replace=force)
+    if not as_json:
+        click.echo(f"wrote {', '.join(str(path) for path in paths)}")

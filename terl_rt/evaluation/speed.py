@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import resource
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 
@@ -47,9 +47,17 @@ class SimulatorSpeed:
         return asdict(self)
 
 
-def simulator_speed(scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = 5) -> SimulatorSpeed:
+SIM_WARMUP = 5
+"""untimed batch steps before `simulator_speed` starts its clock."""
+
+
+def simulator_speed(
+    scenario: Scenario, steps: int, num_envs: int = 1, seed: int = 0, warmup: int = SIM_WARMUP,
+    progress: Callable[[int], None] | None = None,
+) -> SimulatorSpeed:
     """Time `steps` batch steps (after `warmup` untimed ones): the scatter of random actions
-    of the active pursuers and World.step; finished episodes restart untimed."""
+    of the active pursuers and World.step; finished episodes restart untimed.
+    progress: called with 1 after every batch step, warm-up included (a progress bar's update)."""
     rollout = Rollout(World(scenario, num_envs=num_envs, seed=seed))
     rng = np.random.default_rng(seed)
     elapsed, resets = 0.0, 0
@@ -61,6 +69,8 @@ def simulator_speed(scenario: Scenario, steps: int, num_envs: int = 1, seed: int
         rollout.step(chosen)
         if k >= warmup:
             elapsed += time.perf_counter() - start
+        if progress is not None:
+            progress(1)
     return SimulatorSpeed(
         scenario=scenario.name,
         pursuers=scenario.pursuers,

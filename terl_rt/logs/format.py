@@ -70,6 +70,16 @@ def encode(payload: Any) -> bytes:
     return json.dumps(payload, separators=(",", ":")).encode()
 
 
+def decode(data: bytes | str) -> Any:
+    """A message or metadata value written by `encode` (or json.dumps), parsed. ValueError
+    for anything else: bytes that are not UTF-8, text that is not JSON, JSON nested too
+    deeply for the parser (what another tool, or damage, may leave in a log)."""
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise ValueError("JSON nested too deeply to read") from None
+
+
 @dataclass(frozen=True)
 class TopicSchema:
     """The schema of one topic's channel."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import bisect
 import io
-import json
 import os
 import struct
 from collections.abc import Iterator
@@ -21,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -37,6 +37,7 @@ from terl_rt.logs.format import (
     TOPIC_EVENTS,
     TOPIC_STATE,
     EpisodeLogError,
+    decode,
 )
 from terl_rt.logs.foxglove import scene_from_protobuf
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -45,6 +46,11 @@ from terl_rt.sim.state import LOGGED_FIELDS
 
 _MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
+_ZERO_SCAN_BYTES = 1 << 16
+"""bytes read at a time, backwards, to find where a zeroed tail begins."""
+ZEROED_TAIL_BYTES = 512
+"""A file that ends in at least this many zero bytes (a disk sector) lost them in a crash:
+the records of a log never end so (a few zeros can end a record that was cut off)."""
 
 
 @dataclass(frozen=True)
@@ -96,9 +102,10 @@ class LoggedStep:
         data = self.messages.get(topic)
         if data is None:
             return None
-        if topic in self.protobuf:
-            return scene_from_protobuf(data)
-        return json.loads(data)
+        try:
+            return scene_from_protobuf(data) if topic in self.protobuf else decode(data)
+        except (ValueError, DecodeError) as error:
+            raise EpisodeLogError(f"corrupt {topic} message of episode {self.episode} step {self.step}: {error}") from None
 
     @property
     def state(self) -> dict[str, np.ndarray]:
@@ -242,7 +249,26 @@ class EpisodeLogReader:
                 kept = f"episode {last['number']} has no complete step"
         self.problem = f"the file was cut off ({what}); {kept}"
 
+    def _data_end(self, handle) -> int:
+        """Where the file's trailing run of zero bytes begins when it is ZEROED_TAIL_BYTES
+        long or longer, else its size: a machine that crashed while the log was written
+        leaves its last blocks zeroed, and those bytes were never written."""
+        end = self.size
+        while end > 0:
+            start = max(end - _ZERO_SCAN_BYTES, 0)
+            handle.seek(start)
+            block = handle.read(end - start).rstrip(b"\0")
+            if block:
+                end = start + len(block)
+                break
+            end = start
+        handle.seek(0)
+        return end if self.size - end >= ZEROED_TAIL_BYTES else self.size
+
     def _scan(self, handle) -> None:
+        # A zeroed tail counts as missing: the log reads as cut off where its data ends.
+        size = self._data_end(handle)
+        zeros = f"; its last {self.size - size} bytes are zeros, as a crash leaves" if size < self.size else ""
         head = handle.read(len(_MAGIC))
         if len(head) == 0:
             raise self._fail("the file is empty, not an episode log")
@@ -253,12 +279,12 @@ class EpisodeLogReader:
         offset = len(_MAGIC)
         first = True
         while True:
-            if offset == self.size:
-                self._cut("it ends after a whole record but without the MCAP footer: its writer was never closed")
+            if offset == size:
+                self._cut(f"it ends after a whole record but without the MCAP footer: its writer was never closed{zeros}")
                 break
             record_head = handle.read(_RECORD_HEAD.size)
-            if len(record_head) < _RECORD_HEAD.size:
-                self._cut(f"{self.size} bytes, inside the header of a record that starts at byte {offset}")
+            if offset + _RECORD_HEAD.size > size:
+                self._cut(f"{size} bytes, inside the header of a record that starts at byte {offset}{zeros}")
                 break
             opcode, length = _RECORD_HEAD.unpack(record_head)
             body_start = offset + _RECORD_HEAD.size
@@ -269,8 +295,10 @@ class EpisodeLogReader:
             if first and kind != Opcode.HEADER:
                 raise self._fail(f"corrupt file: the first record is {kind.name}, not the MCAP header")
             first = False
-            if body_start + length > self.size:
-                self._cut(f"{self.size} bytes, inside a {kind.name.lower()} record that starts at byte {offset} and needs {length}")
+            if body_start + length > size:
+                self._cut(
+                    f"{size} bytes, inside a {kind.name.lower()} record that starts at byte {offset} and needs {length}{zeros}"
+                )
                 break
             if kind == Opcode.CHUNK:
                 self._on_chunk(handle, offset, length)
@@ -293,9 +321,16 @@ class EpisodeLogReader:
     def _on_metadata(self, offset: int, body: bytes) -> None:
         try:
             record = Metadata.read(ReadDataStream(io.BytesIO(body)))
+        except UnicodeDecodeError as error:
+            raise self._not_text(f"at byte {offset}", error) from None
         except Exception as error:  # any parse failure of a complete record is corruption
             raise self._fail(f"corrupt metadata record at byte {offset}: {error!r}") from None
         self._on_metadata_record(offset, record)
+
+    def _not_text(self, where: str, error: UnicodeDecodeError) -> EpisodeLogError:
+        return self._fail(
+            f"corrupt metadata record {where}: a name or value is not UTF-8 text ({error.reason} at byte {error.start} of it)"
+        )
 
     def _on_metadata_record(self, offset: int, record: Metadata) -> None:
         data = record.metadata
@@ -310,7 +345,7 @@ class EpisodeLogReader:
                 self.world_version = data.get("world", "1")
                 self.policy = {
                     "name": data["policy"], "sha256": data["policy_sha256"], "path": data.get("policy_path", ""),
-                    "metadata": json.loads(data.get("policy_metadata", "{}")),
+                    "metadata": decode(data.get("policy_metadata", "{}")),
                 }
             elif record.name == META_EPISODE:
                 number = int(data["episode"])
@@ -318,7 +353,7 @@ class EpisodeLogReader:
                     raise self._fail(f"episode records out of order at byte {offset}: episode {number} follows {len(self._scanned) - 1}")
                 self._scanned.append({
                     "number": number, "index": int(data["index"]), "seed": int(data["seed"]),
-                    "scenario": Scenario.from_dict(json.loads(data["scenario"])),
+                    "scenario": Scenario.from_dict(decode(data["scenario"])),
                     "metrics": None, "chunks": [], "times": [],
                     "start_ns": int(data["start_time_ns"]) if "start_time_ns" in data else None,
                 })
@@ -326,7 +361,7 @@ class EpisodeLogReader:
                 number = int(data["episode"])
                 if not self._scanned or self._scanned[-1]["number"] != number:
                     raise self._fail(f"end of episode {number} at byte {offset} without its start")
-                self._scanned[-1]["metrics"] = EpisodeMetrics(**json.loads(data["metrics"]))
+                self._scanned[-1]["metrics"] = EpisodeMetrics(**decode(data["metrics"]))
         except EpisodeLogError:
             raise
         except (KeyError, ValueError, TypeError, ScenarioError) as error:
@@ -370,7 +405,7 @@ class EpisodeLogReader:
             time_ns = record.log_time
             if channel.topic == TOPIC_STATE:
                 try:
-                    head = json.loads(record.data)
+                    head = decode(record.data)
                 except ValueError as error:
                     raise self._fail(f"corrupt /state message in the chunk at byte {offset} ({what}): {error}") from None
         if head is None:
@@ -406,7 +441,11 @@ class EpisodeLogReader:
                     raise self._fail(f"the metadata index points at byte {index.offset}, which holds no metadata record")
                 self._on_metadata(index.offset, handle.read(length))
         else:
-            for record in reader.iter_metadata():
+            try:
+                records = list(reader.iter_metadata())
+            except UnicodeDecodeError as error:
+                raise self._not_text("(no index)", error) from None
+            for record in records:
                 self._on_metadata_record(0, record)
         if not self.policy:
             raise self._fail("an MCAP file but not a terl-rt episode log (no 'terl.log' metadata record)")
@@ -480,7 +519,7 @@ class EpisodeLogReader:
         for expected, time_ns in enumerate(sorted(gathered)):
             messages = gathered[time_ns]
             try:
-                head = json.loads(messages[TOPIC_STATE])
+                head = decode(messages[TOPIC_STATE])
                 step = LoggedStep(int(head["episode"]), int(head["step"]), time_ns, messages, self._protobuf_topics())
             except (KeyError, ValueError, TypeError) as error:
                 raise self._fail(f"the /state message of episode {number} at log time {time_ns} is corrupt ({error!r})") from None

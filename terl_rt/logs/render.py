@@ -30,6 +30,8 @@ from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 
 FORMATS = (".png", ".gif", ".mp4")
 """Output suffixes `render` writes."""
+SIZE_RANGE = (64, 4096)
+"""px: the smallest and largest image width drawn (`render`, `draw_state`, PettingZoo's render_size)."""
 GIF_MAX_FRAMES = 200
 """With `every=None`, GIFs keep at most this many frames (every frame is held in memory)."""
 TRAIL_STEPS = 20

@@ -20,6 +20,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from terl_rt import __version__
+from terl_rt.files import NamingFile, publish, temporary_beside
 from terl_rt.logs.format import (
     LOG_FORMAT,
     LOG_VERSION,
@@ -109,22 +110,26 @@ class EpisodeLogWriter:
     then `end_episode`; `close()` (or a `with` block) writes the summary. Each step is
     on disk when `write_step` returns.
 
-    staged: write under a temporary name beside `path` (`staging_path`) and rename it over
-    `path` at the first step, so that a run that fails before its first step leaves an
-    earlier file at `path` untouched (closed without a step, the temporary file is removed).
+    staged: write under a temporary name beside `path` (`staging_path`) and publish it at
+    `path` at the first step (`terl_rt.files.publish`), so that a run that fails before its
+    first step leaves an earlier file at `path` untouched (closed without a step, the
+    temporary file is removed).
+    replace: replace a file at `path`; without, a file there (even one another run
+    published meanwhile) raises FileExistsError naming `path`.
     """
 
-    def __init__(self, path: str | os.PathLike, policy_info: Mapping[str, Any], staged: bool = False):
+    def __init__(
+        self, path: str | os.PathLike, policy_info: Mapping[str, Any], staged: bool = False, replace: bool = True,
+    ):
         for key in ("name", "sha256"):
             if key not in policy_info:
                 raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.policy.onnx_policy.policy_info(policy)")
         self.path = Path(path)
-        self.staging_path: Path | None = (
-            self.path.with_name(f".{self.path.stem}.{os.getpid()}.partial{self.path.suffix}") if staged else None
-        )
+        self.staging_path: Path | None = temporary_beside(self.path) if staged else None
+        self._replace = replace
         self.steps_written = 0
         """steps written so far, all episodes."""
-        self._file = open(self.staging_path or self.path, "wb")
+        self._file = NamingFile(open(self.staging_path or self.path, "wb" if replace or staged else "xb"), self.path)
         self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
         self._mcap.start(profile="", library=f"terl-rt {__version__}")
         self._channels: dict[str, int] = {}
@@ -249,7 +254,7 @@ class EpisodeLogWriter:
         episode.scene_ids = entity_ids(scene)
         self.steps_written += 1
         if self.staging_path is not None:
-            os.replace(self.staging_path, self.path)
+            publish(self.staging_path, self.path, self._replace)
             self.staging_path = None
 
     def end_episode(self, metrics: EpisodeMetrics) -> None:

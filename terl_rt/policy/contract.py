@@ -243,7 +243,7 @@ def check_action_table(metadata: Mapping[str, str]) -> str:
     text = _require_metadata(metadata, META_PURSUER_ACTIONS)
     try:
         table = np.asarray(json.loads(text), dtype=np.float64)
-    except (json.JSONDecodeError, TypeError, ValueError):
+    except (json.JSONDecodeError, TypeError, ValueError, RecursionError):
         raise ContractError(
             f"metadata '{META_PURSUER_ACTIONS}' is not a JSON list of "
             f"{NUM_PURSUER_ACTIONS} [acceleration, yaw rate] pairs: {text[:80]!r}"

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from terl_rt.policy.contract import ContractError
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.geometry import Geometry
 from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
@@ -157,6 +158,8 @@ def observe(
     xy = _vector("ego_xy", ego_xy, 2, "x, y")
     velocity = _vector("ego_velocity", ego_velocity, 2, "vx, vy")
     try:
+        if isinstance(ego_heading, (str, bytes, bool, np.bool_)):
+            raise TypeError  # float("3") would pass: a heading is a number
         heading = float(ego_heading)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"ego_heading: expected one number (rad), got {_short(ego_heading)}") from None
@@ -232,11 +235,19 @@ def decide(
     """The policy's action for one pursuer; arguments as in `observe`.
 
     policy: an `OnnxPolicy` (anything with its `evaluate`). Open it once and reuse it.
+    Raises ContractError (a ValueError) when the policy outputs NaN or Inf, as
+    `terl-rt eval` does, or fails inside onnxruntime (`PolicyRunError`).
     """
     observation = observe(
         ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params, encircled
     )
     output = policy.evaluate(observation)
+    for name, values in (("q_values", output.q_values), ("target_weights", output.target_weights)):
+        if values is not None and not np.isfinite(values).all():
+            raise ContractError(
+                f"policy {getattr(policy, 'name', policy)} output a non-finite {name} "
+                f"({values[~np.isfinite(values)][0]}); no action can be chosen from it"
+            )
     action = int(output.actions[0])
     acceleration, yaw_rate = PURSUER_ACTIONS[action]
     return Decision(

@@ -12,6 +12,7 @@ import hashlib
 import logging
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,7 @@ __all__ = [
     "ContractReport",
     "OnnxPolicy",
     "PolicyOutput",
+    "PolicyRunError",
     "action_to_control",
     "check_contract",
     "describe_session",
@@ -91,6 +93,8 @@ def session_options(threads: int | None = None) -> ort.SessionOptions:
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.use_deterministic_compute = True
+    # Fatal only: a failure while running is raised (PolicyRunError) as one line, not also logged.
+    options.log_severity_level = 4
     return options
 
 
@@ -115,10 +119,14 @@ def open_session(path: str | os.PathLike, threads: int | None = None) -> ort.Inf
 def describe_session(
     session: ort.InferenceSession,
 ) -> tuple[tuple[TensorInfo, ...], tuple[TensorInfo, ...], dict[str, str]]:
-    """A session's declared inputs, outputs and metadata_props."""
+    """A session's declared inputs, outputs and metadata_props; ContractError for
+    metadata that is not UTF-8 text (onnxruntime cannot hand it over)."""
     inputs = tuple(TensorInfo.from_node_arg(arg) for arg in session.get_inputs())
     outputs = tuple(TensorInfo.from_node_arg(arg) for arg in session.get_outputs())
-    metadata = dict(session.get_modelmeta().custom_metadata_map)
+    try:
+        metadata = dict(session.get_modelmeta().custom_metadata_map)
+    except UnicodeDecodeError as error:
+        raise ContractError(f"its metadata is not UTF-8 text ({error.reason} at byte {error.start} of a value)") from None
     return inputs, outputs, metadata
 
 
@@ -132,7 +140,12 @@ def check_contract(
     A path that cannot be loaded raises FileNotFoundError or ContractError.
     """
     session = source if isinstance(source, ort.InferenceSession) else open_session(source)
-    report = check_model(*describe_session(session))
+    try:
+        report = check_model(*describe_session(session))
+    except ContractError as error:
+        if session is source:
+            raise
+        raise ContractError(f"{source}: {error}") from None
     if strict:
         report.raise_for_refusal()
     return report
@@ -249,6 +262,33 @@ class PolicyOutput:
     """[...] int64: argmax of q_values (the first one on ties)."""
 
 
+class PolicyRunError(ContractError):
+    """A policy that loaded failed inside onnxruntime while it ran (a Reshape that cannot
+    apply to this batch, memory it could not allocate): the model is at fault, or the
+    machine lacks memory for it; the message names the policy, the batch and the failure."""
+
+
+MAX_FAILURE_CHARS = 300
+"""onnxruntime's own message in a PolicyRunError is cut to this many characters."""
+
+
+def _run_failure(policy: OnnxPolicy, rows: int, error: Exception) -> PolicyRunError:
+    """The PolicyRunError for `error`, raised by onnxruntime on a batch of `rows` rows:
+    onnxruntime's node and reason, without its source locations."""
+    text = " ".join(str(error).split()) or type(error).__name__
+    node = re.search(r"while running (\S+) node", text)
+    # "... Status Message: file.h:84 Signature(...) condition was false. The reason." -> the reason
+    text = re.split(r"Status Message: |was false\. ", text)[-1]
+    if len(text) > MAX_FAILURE_CHARS:
+        text = text[: MAX_FAILURE_CHARS - 3] + "..."
+    memory = "allocat" in text.lower() or isinstance(error, MemoryError)
+    what = "ran out of memory" if memory else "failed"
+    where = f" in a {node.group(1)} node" if node else ""
+    return PolicyRunError(
+        f"policy {policy.name} ({policy.path}) {what} inside onnxruntime{where} on a batch of {rows} rows: {text}"
+    )
+
+
 class OnnxPolicy:
     """One exported policy file, checked against the contract when loaded.
 
@@ -256,7 +296,8 @@ class OnnxPolicy:
     is sequential and deterministic. `model`: the file's bytes, already read (a Ray
     worker gets them from the object store, with no shared filesystem); `path` then only
     names the policy. Raises FileNotFoundError for a missing file and ContractError for
-    an unreadable file or one that breaks the contract.
+    an unreadable file or one that breaks the contract; `evaluate` raises PolicyRunError
+    when the model fails inside onnxruntime.
     """
 
     def __init__(self, path: str | os.PathLike, threads: int | None = None, model: bytes | None = None):
@@ -357,7 +398,11 @@ class OnnxPolicy:
         if rows == 1:
             feed = {name: np.concatenate([array, array]) for name, array in feed.items()}
         feed = {name: np.ascontiguousarray(array) for name, array in feed.items()}
-        return [result[:rows] for result in self._session.run(self._output_names, feed)]
+        try:
+            results = self._session.run(self._output_names, feed)
+        except Exception as error:  # onnxruntime raises its own types (Fail, RuntimeException, ...)
+            raise _run_failure(self, len(feed["ego"]), error) from None
+        return [result[:rows] for result in results]
 
     def act(self, observation: Observation | Mapping[str, np.ndarray]) -> np.ndarray:
         """Greedy pursuer actions [...] int64 for observations with leading shape `...`."""

@@ -199,6 +199,9 @@ MAX_SCENARIO_FILE_BYTES = 4 * 1024 * 1024
 INITIAL_STATE_MARGIN = 0.5
 """Entities of an initial_state lie within this fraction of the arena's width (height)
 outside the arena: x in [-0.5 W, 1.5 W], y in [-0.5 H, 1.5 H]."""
+MAX_INITIAL_HEADING = 1000.0
+"""rad: headings of an initial_state lie in [-1000, 1000] (they are wrapped into [0, 2 pi);
+beyond, the wrap would lose the angle to rounding: 1e300 rad names no direction)."""
 _INT_FIELDS = ("pursuers", "evaders", "obstacles", "vortices", "evader_slots", "max_steps")
 _FLOAT_FIELDS = ("min_pursuer_evader_init_dis", "clear_r")
 _STATE_WIDTHS = {"pursuers": 4, "evaders": 4, "obstacles": 3, "vortices": 4}
@@ -211,6 +214,11 @@ def _limit_hint(name: str) -> str:
 def _validate(s: Scenario) -> None:
     if not isinstance(s.name, str) or not s.name or len(s.name) > 200:
         raise ScenarioError(f"name: must be a non-empty string of at most 200 characters, got {short_repr(s.name)}")
+    # Tables, logs and CSV files print the name: it must be text that can be written.
+    if not s.name.isprintable():  # unpaired surrogates are not printable either
+        raise ScenarioError(
+            f"name: must be printable text (no control characters or unpaired surrogates), got {short_repr(s.name)}"
+        )
     if not isinstance(s.params, WorldParams):
         raise ScenarioError(f"params: must be a WorldParams, got {short_repr(s.params)}")
     problem = check_params(s.params)
@@ -272,6 +280,13 @@ def _validate_initial_state(s: Scenario) -> None:
             )
     p = s.params
     for group, s_max in (("pursuers", p.pursuer_max_speed), ("evaders", p.evader_max_speed)):
+        heading = getattr(init, group)[:, 2]
+        if np.any(np.abs(heading) > MAX_INITIAL_HEADING):
+            row = int(np.flatnonzero(np.abs(heading) > MAX_INITIAL_HEADING)[0])
+            raise ScenarioError(
+                f"initial_state.{group}[{row}]: heading {heading[row]:.6g} rad; headings must lie in "
+                f"[-{MAX_INITIAL_HEADING:g}, {MAX_INITIAL_HEADING:g}] rad"
+            )
         speed = getattr(init, group)[:, 3]
         if np.any((speed < 0) | (speed > s_max)):
             raise ScenarioError(f"initial_state.{group}: speeds must lie in [0, {s_max}] m/s")

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.sim.actions import EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
+from terl_rt.sim.actions import EVADER_ACTIONS, NUM_EVADER_ACTIONS, NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
 from terl_rt.sim.collisions import collisions
 from terl_rt.sim.dynamics import as_pairs, integrate, signed_circulation
 from terl_rt.sim.encirclement import encircle, remember_perceived
@@ -238,9 +238,10 @@ class World:
         )
 
         # Evaders decide from the world as it is (geometry cached from the last step).
-        evader_actions = np.asarray(self.evader_policy.act(state, geometry, p, scenario.arena), np.int64)
-        if evader_actions.shape != evader_was_active.shape:
-            raise ValueError(f"evader policy returned shape {evader_actions.shape}, expected {evader_was_active.shape}")
+        evader_actions = _check_actions(
+            self.evader_policy.act(state, geometry, p, scenario.arena), evader_was_active,
+            f"the evader policy's actions ({type(self.evader_policy).__name__})", NUM_EVADER_ACTIONS,
+        )
 
         # Everyone moves (pursuers and evaders integrated together).
         n = scenario.pursuers
@@ -306,14 +307,18 @@ class World:
         return episode_metrics(self.state, env, self.params, float(self.episode_return[env]))
 
 
-def _check_actions(actions: np.ndarray, active: np.ndarray) -> np.ndarray:
-    """Validate pursuer actions [B, N] integer indices; inactive pursuers' entries are ignored."""
+def _check_actions(
+    actions: np.ndarray, active: np.ndarray, name: str = "pursuer_actions", count: int = NUM_PURSUER_ACTIONS,
+) -> np.ndarray:
+    """Validate action indices [B, N] (or [B, M]) in [0, count), int64; inactive robots'
+    entries are ignored. `name` names them in the ValueError."""
     array = np.asarray(actions)
     if array.shape != active.shape:
-        raise ValueError(f"pursuer_actions: expected shape {active.shape} (one per pursuer), got {array.shape}")
+        raise ValueError(f"{name}: expected shape {active.shape} (one per robot), got {array.shape}")
     if array.dtype.kind not in "iu":
-        raise ValueError(f"pursuer_actions: expected integer action indices, got dtype {array.dtype}")
+        raise ValueError(f"{name}: expected integer action indices, got dtype {array.dtype}")
     array = np.where(active, array, 0)
-    if array.min() < 0 or array.max() >= NUM_PURSUER_ACTIONS:
-        raise ValueError(f"pursuer_actions: indices must lie in [0, {NUM_PURSUER_ACTIONS}), got {array[active].tolist()}")
-    return array
+    if array.min() < 0 or array.max() >= count:
+        bad = array[(array < 0) | (array >= count)]
+        raise ValueError(f"{name}: indices must lie in [0, {count}), got {bad[0]} among {array[active].tolist()!s:.200}")
+    return array.astype(np.int64, copy=False)
