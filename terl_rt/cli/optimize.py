@@ -18,6 +18,7 @@ from terl_rt.cli.options import (
     threads_option,
 )
 from terl_rt.cli.outputs import check_output, force_option
+from terl_rt.files import atomic_output
 from terl_rt.policy.flops import OnnxMissing
 from terl_rt.evaluation.optimize import DECISION_AGREEMENT, VARIANTS, optimize_policy
 
@@ -46,7 +47,13 @@ def optimize_command(ctx, policy_path, out, variants, scenario_names, suite, epi
     scenario's success rate inside the float's exact 95 % interval (--episodes each, the
     paper suite unless --scenario or --suite), and a call at least 1.1x faster. The fastest variant that
     passes is written to --out; a variant that fails is not offered (exit status 1 when
-    none passes)."""
+    none passes).
+
+    \b
+    Examples:
+      terl-rt optimize exported/terl.onnx -o runs/terl-fast.onnx
+      terl-rt optimize my.onnx -o fast.onnx --scenario small-15 --episodes 20 --json
+    """
     policy = open_policy(policy_path, threads=threads or 1)
     target = check_output(out, "--out", [("policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names, None, suite or (None if scenario_names else "paper"))
@@ -55,8 +62,6 @@ def optimize_command(ctx, policy_path, out, variants, scenario_names, suite, epi
     except OnnxMissing as error:
         raise BadInput(str(error)) from None
     passed = sorted((check for check in checks if check.passed), key=lambda check: -check.speedup)
-    if passed:
-        target.write_bytes(passed[0].model)
     if as_json:
         click.echo(json.dumps({
             "policy": policy.name, "scenarios": [scenario.name for scenario in scenarios], "episodes": episodes,
@@ -68,6 +73,8 @@ def optimize_command(ctx, policy_path, out, variants, scenario_names, suite, epi
         for check in checks:
             verdict = "passes" if check.passed else f"fails '{check.failed_check}'"
             click.echo(f"{check.name:<14}{verdict:<22}{check.detail}")
-        click.echo(f"wrote {passed[0].name} to {target}" if passed else "no variant passed its checks; nothing written")
+        click.echo(f"writing {passed[0].name} to {target}" if passed else "no variant passed its checks; nothing written")
     if not passed:
         ctx.exit(1)
+    with atomic_output(target, replace=force) as staging:  # after the results are printed
+        staging.write_bytes(passed[0].model)
