@@ -4,7 +4,8 @@ The specs run in batches (terl_rt.evaluation.runs.batches), each batch's episode
 in one World. With `workers > 1` the batches are spread over processes (spawn), each
 reopening the policy files; they send each step to this process as they take it (one
 pipe, one message at a time), which delivers it to the run (terl_rt.evaluation.runs).
-Interrupted or failed, the workers stop within a step and what they sent is delivered.
+Interrupted (Ctrl-C, SIGTERM, SIGHUP) or failed, the workers stop within a step and what
+they sent is delivered.
 Workers end with their parent, even when it is killed (SIGKILL).
 """
 
@@ -21,7 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
-from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, sigint_as_flag
+from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, raise_stop, stop_signals_as_flag
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
@@ -147,7 +148,7 @@ def _run_in_workers(
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=init)
     futures = []
     ended = 0
-    with sigint_as_flag() as interrupted:
+    with stop_signals_as_flag() as interrupted:
         try:
             futures = [
                 pool.submit(_worker_batch, batch, specs[batch[0]].policy, specs[batch[0]].scenario,
@@ -155,8 +156,7 @@ def _run_in_workers(
                 for batch in parts
             ]
             while ended < len(specs):
-                if interrupted:
-                    raise KeyboardInterrupt
+                raise_stop(interrupted)
                 if messages.poll(0.1):
                     kind, number, payload = messages.recv()
                     ended += kind == "end"
