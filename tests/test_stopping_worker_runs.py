@@ -75,7 +75,8 @@ def _assert_log_keeps_complete_steps(log: Path, episodes_at_least: int) -> None:
     assert all(verify(log, e.number).ok for e in reader.episodes)
 
 
-@pytest.mark.parametrize("signum, to_group", [(signal.SIGTERM, False)], ids=["sigterm-to-the-process"])
+@pytest.mark.parametrize("signum, to_group", [(signal.SIGTERM, False), (signal.SIGHUP, True)],
+                         ids=["sigterm-to-the-process", "sighup-to-the-terminal-group"])
 def test_sigterm_or_sighup_of_a_worker_run_writes_the_held_steps_and_exits_128_plus_signal(
         policy_path, tmp_path, signum, to_group):
     log = tmp_path / "stopped.mcap"
@@ -87,3 +88,39 @@ def test_sigterm_or_sighup_of_a_worker_run_writes_the_held_steps_and_exits_128_p
     assert _error_line(stderr).startswith("Error: stopped by " + signal.Signals(signum).name)
     # Both workers' episodes are in the log: the one written live and the one held in memory.
     _assert_log_keeps_complete_steps(log, episodes_at_least=2)
+
+
+def test_ctrl_c_while_the_workers_start_prints_no_worker_traceback(policy_path, tmp_path):
+    log = tmp_path / "early.mcap"
+    process = _start(policy_path, log)
+    deadline = time.monotonic() + 30
+    while not _workers(process) and time.monotonic() < deadline:  # spawned, still importing
+        time.sleep(0.01)
+    os.killpg(process.pid, signal.SIGINT)
+    status, stderr = _finish(process)
+    assert status != 0
+    assert "Traceback" not in stderr and "BrokenProcessPool" not in stderr, stderr
+
+
+def test_a_worker_killed_mid_run_ends_the_run_in_one_line_keeping_what_was_run(policy_path, tmp_path):
+    log = tmp_path / "worker-killed.mcap"
+    process = _start(policy_path, log)
+    wait_for_log(process, log)
+    os.kill(_workers(process)[-1], signal.SIGKILL)
+    status, stderr = _finish(process)
+    assert status == 2, stderr
+    assert "a worker process ended unexpectedly" in _error_line(stderr)
+    _assert_log_keeps_complete_steps(log, episodes_at_least=1)
+
+
+def test_a_policy_file_replaced_during_a_worker_run_is_not_read_again(policy_path, tmp_path):
+    """The workers run the bytes the run opened, whatever the file holds by the time they start."""
+    path = tmp_path / "replaced.onnx"
+    path.write_bytes(policy_path.read_bytes())
+    policy = OnnxPolicy(path)
+    path.write_bytes(b"not an onnx model any more")
+    scenario = Scenario.preset("small-11")
+    with_workers = evaluate(policy, scenario, episodes=2, seed=0, max_steps=5, workers=2)
+    alone = evaluate(OnnxPolicy(policy_path), scenario, episodes=2, seed=0, max_steps=5)
+    assert with_workers.episodes == 2
+    assert (with_workers.steps_mean, with_workers.collision_ratio_mean) == (alone.steps_mean, alone.collision_ratio_mean)
