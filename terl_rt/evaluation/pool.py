@@ -79,7 +79,7 @@ _PR_SET_PDEATHSIG = 1
 _WATCHDOG_S = 0.5
 """s: how often a worker checks that its parent is still alive."""
 
-_GROUP_SIGNALS = {signal.SIGINT, signal.SIGHUP}
+_GROUP_SIGNALS = {getattr(signal, name) for name in ("SIGINT", "SIGHUP") if hasattr(signal, name)}
 """What a terminal sends the whole process group (Ctrl-C, closing it): the parent handles
 them and sets `stop`, which the workers check every step (killed, a worker could leave a
 message half sent). Blocked while the workers start, ignored by them once started."""

@@ -110,8 +110,8 @@ def run_episodes(
         raise
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""What stops a run: Ctrl-C, `kill PID` and a closed terminal."""
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+"""What stops a run: Ctrl-C, `kill PID` and a closed terminal (no SIGHUP on Windows)."""
 
 
 class Stopped(KeyboardInterrupt):
