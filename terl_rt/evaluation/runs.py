@@ -110,48 +110,20 @@ def run_episodes(
         raise
 
 
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-"""What stops a run: Ctrl-C, `kill PID` and a closed terminal (no SIGHUP on Windows)."""
-
-
-class Stopped(KeyboardInterrupt):
-    """The run was stopped by SIGTERM or SIGHUP (SIGINT stays a plain KeyboardInterrupt);
-    what had arrived was written first. The terl-rt group prints it as one line and exits
-    with 128 + `signum`, as a process ended by that signal would."""
-
-    def __init__(self, signum: int):
-        super().__init__(f"stopped by {signal.Signals(signum).name}; what had been run is kept")
-        self.signum = signum
-
-
-def raise_stop(received: Sequence[int]) -> None:
-    """Raise what the first signal in `received` (from `stop_signals_as_flag`) asks: KeyboardInterrupt
-    for SIGINT, Stopped for SIGTERM or SIGHUP; nothing when it is empty."""
-    if not received:
-        return
-    if received[0] == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise Stopped(received[0])
-
-
 @contextmanager
-def stop_signals_as_flag() -> Iterator[list[int]]:
-    """Inside the block Ctrl-C, SIGTERM and SIGHUP (STOP_SIGNALS) only append their number to
-    the list yielded, which a backend checks between messages (`raise_stop`): a message
-    taken off its queue is always delivered. Outside the main thread the list stays empty
-    and the signals are left alone."""
+def sigint_as_flag() -> Iterator[list[int]]:
+    """Inside the block Ctrl-C (SIGINT) only appends to the list yielded, which a backend
+    checks between messages: a message taken off its queue is always delivered. Outside
+    the main thread the list stays empty and SIGINT is left alone."""
     received: list[int] = []
     if threading.current_thread() is not threading.main_thread():
         yield received
         return
-    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
-                for signum in STOP_SIGNALS}
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
     try:
         yield received
     finally:
-        for signum, handler in previous.items():
-            if handler is not None:  # None: a handler not installed from Python, which cannot be put back
-                signal.signal(signum, handler)
+        signal.signal(signal.SIGINT, previous)
 
 
 class InOrderLog:
