@@ -140,9 +140,13 @@ def test_an_unreachable_cluster_is_one_error_line_at_once():
     assert time.monotonic() - start < 30
 
 
+LONG_RUN = ("--episodes", "40", "--max-steps", "1000")
+"""A run still under way when its log has grown (batched episodes finish fast): the runs below are stopped."""
+
+
 def test_ctrl_c_of_a_ray_run_writes_every_received_step_and_stops_ray(policy_path, tmp_path):
     log = tmp_path / "interrupted.mcap"
-    process = start_eval(policy_path, log, "--backend", "ray")
+    process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)
     try:
         wait_for_log(process, log)
         ray_processes = descendants(process.pid)
@@ -161,7 +165,7 @@ def test_ctrl_c_of_a_ray_run_writes_every_received_step_and_stops_ray(policy_pat
 
 def test_sigkill_of_a_ray_run_keeps_the_streamed_steps_and_ends_its_workers(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
-    process = start_eval(policy_path, log, "--backend", "ray")
+    process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)
     ray_processes: set[int] = set()
     try:
         wait_for_log(process, log)

@@ -376,7 +376,7 @@ def test_values_command_prints_a_row_per_checkpoint_and_names_a_bad_scenario(tmp
 # ---------------------------------------------------------------- configs of earlier runs
 def test_a_flat_config_of_an_earlier_run_reads_with_its_values():
     """Runs in progress wrote every field at the top level, retired knobs included: they resume."""
-    path = Path(__file__).parents[2] / "checkpoints" / "value-screen" / "actor-seed-1-200k" / "config.json"
+    path = Path(__file__).parents[2] / "tests" / "data" / "flat-config-of-an-earlier-run.json"  # actor seed 1, 200 k
     flat = json.loads(path.read_text())
     config = Config.from_file(path)
     assert flat["n_step"] == 1 and flat["emergency_weight"] == 1.0  # retired, at their neutral values
