@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from terl_rt.evaluation.seed_stats import (
-    aggregate_with_interval,
+    aggregates_with_intervals,
     bootstrap_scores,
     improvement_with_interval,
     iqm,
@@ -58,21 +58,22 @@ def test_a_resample_draws_whole_seeds_then_episodes_within_them():
 
 
 def test_the_interval_of_identical_seeds_and_episodes_is_the_point():
-    value, interval = aggregate_with_interval([episodes([1, 1], [1, 1])], mean, resamples=50)
+    (value,), (interval,) = aggregates_with_intervals([episodes([1, 1], [1, 1])], [mean], resamples=50)
     assert value[0] == 1.0 and interval[:, 0].tolist() == [1.0, 1.0]
 
 
 def test_the_bootstrap_interval_covers_the_mean_it_was_drawn_around():
     rng = np.random.default_rng(3)
     data = rng.normal(5.0, 1.0, size=(3, 40, 1))
-    value, interval = aggregate_with_interval([data, data + 1.0], mean, resamples=500)
-    assert interval[0, 0] < value[0] < interval[1, 0]
-    assert interval[0, 0] < 5.5 < interval[1, 0]  # the true mean of both presets
+    values, intervals = aggregates_with_intervals([data, data + 1.0], [mean, iqm], resamples=500)
+    for value, interval in zip(values, intervals):  # the mean, then the IQM
+        assert interval[0, 0] < value[0] < interval[1, 0]
+        assert interval[0, 0] < 5.5 < interval[1, 0]  # the true mean of both presets
 
 
 def test_the_same_episodes_give_the_same_interval():
     data = [episodes([1, 0, 1], [0, 0, 1])]
-    first, second = (aggregate_with_interval(data, iqm, resamples=100)[1] for _ in range(2))
+    first, second = (aggregates_with_intervals(data, [iqm], resamples=100)[1] for _ in range(2))
     assert first.tobytes() == second.tobytes()
 
 

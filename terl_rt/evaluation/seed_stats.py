@@ -79,14 +79,17 @@ def percentile_interval(samples: np.ndarray, confidence: float = CONFIDENCE) -> 
     return np.quantile(samples, [tail, 1.0 - tail], axis=0)
 
 
-def aggregate_with_interval(
-    presets: Sequence[np.ndarray], aggregate: Aggregate, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED,
+def aggregates_with_intervals(
+    presets: Sequence[np.ndarray], aggregates: Sequence[Aggregate], resamples: int = RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(value [Q], interval [2, Q]): `aggregate` (`mean` or `iqm`) of the scores of
-    `presets` ([P] arrays [S, K_p, Q]) and its 95 % stratified bootstrap interval."""
-    point = aggregate(np.moveaxis(scores(presets), -1, 0))
-    resampled = aggregate(np.moveaxis(bootstrap_scores(presets, np.random.default_rng(seed), resamples), -1, 1))
-    return point, percentile_interval(resampled)
+    """(values [A, Q], intervals [A, 2, Q]): each of the A `aggregates` (`mean`, `iqm`) of
+    the scores of `presets` ([P] arrays [S, K_p, Q]) and its 95 % stratified bootstrap
+    interval, all from the same resamples."""
+    point = np.moveaxis(scores(presets), -1, 0)  # [Q, S, P]
+    resampled = np.moveaxis(bootstrap_scores(presets, np.random.default_rng(seed), resamples), -1, 1)  # [R, Q, S, P]
+    return (np.stack([aggregate(point) for aggregate in aggregates]),
+            np.stack([percentile_interval(aggregate(resampled)) for aggregate in aggregates]))
 
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
