@@ -117,20 +117,19 @@ def policy_identity(metadata: Mapping[str, str]) -> tuple[str, int | None]:
 
 def check_seeds(policies: Sequence[tuple[str, int | None, str]]) -> None:
     """Raise ComparisonError when two of the (method, seed, policy path) triples are one
-    seed of one method, or a method with several policies has one without a seed."""
-    seen: dict[tuple[str, int | None], str] = {}
-    methods: dict[str, int] = {}
-    for method, seed, _ in policies:
-        methods[method] = methods.get(method, 0) + 1
-    for method, seed, path in policies:
-        if seed is None and methods[method] > 1:
-            raise ComparisonError(
-                f"{path} (method {method!r}) has no seed (metadata terl.seed, or terl.training_config's "
-                "seed), so its method's seeds cannot be told apart"
-            )
-        if (method, seed) in seen:
-            raise ComparisonError(f"{seen[(method, seed)]} and {path} are both method {method!r}, seed {seed}")
-        seen[(method, seed)] = path
+    method and either the same seed or one of them without a seed (they cannot be told apart)."""
+    for first, (method, seed, path) in enumerate(policies):
+        for other_method, other_seed, other_path in policies[first + 1:]:
+            if method != other_method:
+                continue
+            if seed is None or other_seed is None:
+                unseeded = path if seed is None else other_path
+                raise ComparisonError(
+                    f"{path} and {other_path} are both method {method!r} and {unseeded} has no seed (metadata "
+                    "terl.seed, or the seed of terl.training_config), so they cannot be told apart as seeds"
+                )
+            if seed == other_seed:
+                raise ComparisonError(f"{path} and {other_path} are both method {method!r}, seed {seed}")
 
 
 def beyond_scenarios() -> list[Scenario]:
