@@ -144,7 +144,7 @@ def beyond_group(pursuers: int) -> str:
 
 SEED_GROUPS: tuple[str, ...] = (*REPORT_GROUPS, *(beyond_group(n) for n in BEYOND_PURSUERS))
 """The scale groups of a seed comparison, in order: the paper's, then the ones beyond it."""
-_BEYOND_NAMES = {f"scale-{n}": beyond_group(n) for n in BEYOND_PURSUERS}
+_BEYOND_NAMES = {scaling_scenario(n).name: beyond_group(n) for n in BEYOND_PURSUERS}
 """scaling_scenario(n).name -> its group."""
 
 
@@ -215,10 +215,10 @@ def group_presets(runs: Sequence[SeedRun]) -> dict[str, list[np.ndarray]]:
     """group -> [P] arrays [S, K, Q] (S seeds of one method; a preset's K episodes, the
     fewest any seed ran), for every group whose presets every seed was evaluated on."""
     names = [r.name for r in runs[0].results]
+    per_seed = [{r.name: r for r in run.results} for run in runs]
     out: dict[str, list[np.ndarray]] = {}
     for group in SEED_GROUPS:
         presets = [n for n in names if group_of(n) == group]
-        per_seed = [{r.name: r for r in run.results} for run in runs]
         if not presets or any(name not in results for results in per_seed for name in presets):
             continue
         arrays = []
@@ -429,12 +429,12 @@ def render_seed_markdown(
         lines.append("TERL was not evaluated beside another method.")
     else:
         lines += ["| group | method | higher success | shorter travel time | fewer collisions |", "|---|---|---:|---:|---:|"]
-        for row in better:
+        for improvement in better:
             cells = " | ".join(
-                f"{row.probability[m]:.2f} {format_interval(row.ci95[m], 2)}"
+                f"{improvement.probability[m]:.2f} {format_interval(improvement.ci95[m], 2)}"
                 for m in ("success_rate", "travel_time_s", "collision_ratio")
             )
-            lines.append(f"| {row.group} | {row.method} | {cells} |")
+            lines.append(f"| {improvement.group} | {improvement.method} | {cells} |")
     return "\n".join(lines) + "\n"
 
 
