@@ -19,6 +19,7 @@ from onnx_models import write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
+from terl_rt.cli.report import over_seeds
 from terl_rt.evaluation.comparison import ComparisonError
 from terl_rt.evaluation.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
 from terl_rt.evaluation.seed_comparison import (
@@ -36,6 +37,7 @@ from terl_rt.evaluation.seed_comparison import (
     write_seed_comparison,
 )
 from terl_rt.evaluation.speed import scaling_scenario
+from terl_rt.policy.onnx_policy import OnnxPolicy
 
 DATE = datetime(2025, 3, 1, 12, 30, tzinfo=timezone.utc)
 PRESETS = ("small-11", "small-15", "large-72", "cc-28")
@@ -252,3 +254,13 @@ def test_beyond_carries_one_policy_on_to_the_larger_worlds(seeded, tmp_path):
     assert [a["group"] for a in out["aggregates"]] == [
         "small (released config)", "160 pursuers", "240 pursuers", "400 pursuers"]
     assert "--beyond" in out["command"]
+
+
+def test_a_one_file_method_beside_a_grids_seeds_counts_as_its_training_configs_seed(seeded, tmp_path):
+    old = write_test_policy(tmp_path / "terl.onnx", seed=7, model="terl",
+                            metadata={"terl.training_config": json.dumps({"seed": 3})})
+    policies = [OnnxPolicy(path) for path in (old, seeded / "terl-seed-1.onnx")]
+    assert over_seeds(policies)
+    assert [policy_identity(p.metadata) for p in policies] == [("TERL", 3), ("TERL", 1)]
+    one_each = [OnnxPolicy(write_test_policy(tmp_path / f"{m}.onnx", model=m)) for m in ("terl", "iqn")]
+    assert not over_seeds(one_each)  # today's one file a method: the comparison without seeds
