@@ -222,18 +222,14 @@ def compare_policies(
     force: bool,
     command: str,
 ) -> None:
-    """`terl-rt report` with several policies: open them all (refusing two of one method),
-    evaluate each on the scenarios in turn, in the paper's order of methods, and write
+    """`terl-rt report` with several policies, one a method (`over_seeds` is false): evaluate
+    each on the scenarios in turn, in the paper's order of methods, and write
     comparison.md, .png and .json."""
     outputs = (comparison.MARKDOWN_NAME, comparison.FIGURE_NAME, comparison.JSON_NAME)
     for name in outputs:
         check_output(out_dir / name, "--out", [("--policy", policy.path) for policy in policies], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     methods = [(comparison.method_name(policy.name), policy) for policy in policies]
-    try:
-        comparison.check_methods([(method, str(policy.path)) for method, policy in methods])
-    except comparison.ComparisonError as error:
-        raise BadInput(f"--policy: {error}") from error
     runs = []
     with run_backend(backend, workers, address, threads) as runner:
         for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
