@@ -218,16 +218,18 @@ def write_test_policy(
     seed: int = 0,
     training_info: bool = True,
     model: str = "linear-test",
+    metadata: Mapping[str, str] | None = None,
 ) -> Path:
     """Write the linear test policy (weights `LinearWeights.from_seed(seed)`) to `path`.
 
     It meets the contract; `target_weights=False` leaves that output out,
     `training_info=False` the training metadata (warnings only); `model` is its
-    terl.model name (e.g. "iqn" to stand for a baseline). Returns the path.
+    terl.model name (e.g. "iqn" to stand for a baseline); `metadata` adds keys (e.g.
+    terl.method and terl.seed of a comparison's seed). Returns the path.
     """
     spec = _ModelSpec(
         weights=LinearWeights.from_seed(seed),
-        metadata=contract_metadata(training_info=training_info, model=model),
+        metadata={**contract_metadata(training_info=training_info, model=model), **(metadata or {})},
         target_weights=target_weights,
     )
     return _save(_build(spec), path)

@@ -1,5 +1,6 @@
 """`terl-rt report`: evaluate a policy on the paper's presets and write docs/results.md and .png;
-several policies: docs/comparison.md, .png and .json."""
+several policies: docs/comparison.md, .png and .json (over training seeds: and the
+marl-eval export)."""
 
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
-from terl_rt.evaluation import comparison
+from terl_rt.evaluation import comparison, seed_comparison
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
@@ -45,7 +46,8 @@ from terl_rt.evaluation.report import (
     write_report,
 )
 from terl_rt.files import atomic_outputs
-from terl_rt.policy.onnx_policy import policy_info
+from terl_rt.policy.contract import META_METHOD, META_SEED
+from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 
 def command_line(
     policy_paths: tuple[str, ...],
@@ -59,6 +61,7 @@ def command_line(
     force: bool = False,
     backend: str = "local",
     address: str | None = None,
+    beyond: bool = False,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -66,6 +69,8 @@ def command_line(
         words += ["--policy", path]
     for name in scenario_names:
         words += ["--scenario", name]
+    if beyond:
+        words.append("--beyond")
     words += ["--episodes", str(episodes), "--seed", str(seed)]
     if max_steps is not None:
         words += ["--max-steps", str(max_steps)]
@@ -90,6 +95,14 @@ def command_line(
     help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
     "ones; see `terl-rt scenarios`].",
 )
+@click.option(
+    "--beyond", is_flag=True,
+    help="Also evaluate teams past the paper's: "
+    f"{', '.join(str(n) for n in seed_comparison.BEYOND_PURSUERS)} pursuers in `terl-rt bench scaling`'s worlds "
+    "(large-80's grown, evaders a quarter of the pursuers, the same density); writes the comparison over "
+    "seeds, even of one policy. A 400-pursuer step costs the simulator about 6 large-80 steps and the policy 5 "
+    "times the rows (docs/benchmarks.md).",
+)
 @report_episodes_option
 @seed_option
 @max_steps_option
@@ -104,7 +117,8 @@ def command_line(
 @json_option
 @force_option
 def report_command(
-    policy_paths, scenario_names, episodes, seed, max_steps, workers, backend, address, threads, out, as_json, force,
+    policy_paths, scenario_names, beyond, episodes, seed, max_steps, workers, backend, address, threads, out, as_json,
+    force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
@@ -120,11 +134,22 @@ def report_command(
     ablation, each beside the paper's numbers, with 95 % intervals), DIR/comparison.png
     (Fig. 3: one line a method) and DIR/comparison.json.
 
+    Several training seeds of a method (files with terl.method and terl.seed metadata, as
+    a grid exports them to exported/comparison/<method>-seed-<S>.onnx; or two files of
+    one method whose terl.training_config seeds differ), or --beyond, make it a comparison
+    over seeds: per method and scale group the mean and interquartile mean over seeds with
+    95 % stratified bootstrap intervals and the probability that TERL does better; the
+    paper's claims judged on them (reproduces, does not reproduce, or cannot tell where the
+    intervals overlap); a bar figure in the form of Fig. 3; and every episode in marl-eval's
+    JSON format, DIR/comparison-marl-eval.json.
+
     \b
     Examples:
       terl-rt report                                   # the default policy into ./report
       terl-rt report --policy my.onnx --episodes 5 --workers 2 --out my-report
       terl-rt report --policy policies/ --scenario cc-28 --out comparison
+      terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force
+      terl-rt report --policy exported/comparison --beyond --scenario small-15 --episodes 10 --out /tmp/beyond
     """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
@@ -133,11 +158,16 @@ def report_command(
     out_dir = output_folder(out)
     files = policy_files(policy_paths)
     command = command_line(
-        policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address,
+        policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address, beyond,
     )
-    if len(files) > 1:
-        compare_policies(files, scenario_names, episodes, seed, max_steps, workers, backend, address, threads,
-                         out_dir, as_json, force, command)
+    if len(files) > 1 or beyond:
+        policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
+        if beyond or over_seeds(policies):
+            compare_seeds(policies, scenario_names, beyond, episodes, seed, max_steps, workers, backend, address,
+                          threads, out_dir, as_json, force, command)
+        else:
+            compare_policies(policies, scenario_names, episodes, seed, max_steps, workers, backend, address, threads,
+                             out_dir, as_json, force, command)
         return
     policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
@@ -168,8 +198,17 @@ def report_command(
         click.echo(f"wrote {paths.markdown} and {paths.figure}")
 
 
+def over_seeds(policies: list[OnnxPolicy]) -> bool:
+    """Whether several policies are compared over training seeds: one carries terl.method
+    or terl.seed, or two are of one method."""
+    methods = [comparison.method_name(policy.name) for policy in policies]
+    return len(set(methods)) < len(methods) or any(
+        META_METHOD in policy.metadata or META_SEED in policy.metadata for policy in policies
+    )
+
+
 def compare_policies(
-    files: list[str],
+    policies: list[OnnxPolicy],
     scenario_names: tuple[str, ...],
     episodes: int,
     seed: int,
@@ -183,19 +222,14 @@ def compare_policies(
     force: bool,
     command: str,
 ) -> None:
-    """`terl-rt report` with several policies: open them all (refusing two of one method),
-    evaluate each on the scenarios in turn, in the paper's order of methods, and write
+    """`terl-rt report` with several policies, one a method (`over_seeds` is false): evaluate
+    each on the scenarios in turn, in the paper's order of methods, and write
     comparison.md, .png and .json."""
     outputs = (comparison.MARKDOWN_NAME, comparison.FIGURE_NAME, comparison.JSON_NAME)
     for name in outputs:
-        check_output(out_dir / name, "--out", [("--policy", path) for path in files], force)
+        check_output(out_dir / name, "--out", [("--policy", policy.path) for policy in policies], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
-    policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
     methods = [(comparison.method_name(policy.name), policy) for policy in policies]
-    try:
-        comparison.check_methods([(method, str(policy.path)) for method, policy in methods])
-    except comparison.ComparisonError as error:
-        raise BadInput(f"--policy: {error}") from error
     runs = []
     with run_backend(backend, workers, address, threads) as runner:
         for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
@@ -216,3 +250,56 @@ def compare_policies(
         comparison.write_comparison(runs, staging, command, date)
     if not as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
+
+
+def compare_seeds(
+    policies: list[OnnxPolicy],
+    scenario_names: tuple[str, ...],
+    beyond: bool,
+    episodes: int,
+    seed: int,
+    max_steps: int | None,
+    workers: int | None,
+    backend: str,
+    address: str | None,
+    threads: int | None,
+    out_dir: Path,
+    as_json: bool,
+    force: bool,
+    command: str,
+) -> None:
+    """`terl-rt report` over training seeds: name each policy's method and seed (refusing
+    two that cannot be told apart), evaluate each in the paper's order of methods, then by
+    seed, on the scenarios (and the worlds beyond the paper with `beyond`), and write
+    seed_comparison.OUTPUT_NAMES."""
+    outputs = seed_comparison.OUTPUT_NAMES
+    for name in outputs:
+        check_output(out_dir / name, "--out", [("--policy", policy.path) for policy in policies], force)
+    try:
+        named = [(*seed_comparison.policy_identity(policy.metadata), policy) for policy in policies]
+        seed_comparison.check_seeds([(method, run_seed, str(policy.path)) for method, run_seed, policy in named])
+    except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
+        raise BadInput(f"--policy: {error}") from error
+    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
+    if beyond:
+        scenarios += seed_comparison.beyond_scenarios()
+    named.sort(key=lambda item: (comparison.paper_order(item[0]), -1 if item[1] is None else item[1]))
+    runs = []
+    with run_backend(backend, workers, address, threads) as runner:
+        for number, (method, run_seed, policy) in enumerate(named, start=1):
+            click.echo(f"[{number}/{len(named)}] {method} seed {run_seed}: {policy.path}", err=True)
+            results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
+            runs.append(seed_comparison.SeedRun(method, run_seed, policy_info(policy), tuple(results)))
+    date = datetime.now(timezone.utc)
+    stats = seed_comparison.seed_statistics(runs)
+    paths = dict(zip(("figure", "markdown", "json", "marl_eval"), (str(out_dir / name) for name in outputs)))
+    # The results reach the terminal before any file is written: a full disk cannot lose them.
+    if as_json:
+        click.echo(json.dumps({**seed_comparison.seed_comparison_dict(runs, stats, command, date), "files": paths}))
+    else:
+        for check in stats.claims:
+            click.echo(f"{check.verdict:<19} {check.claim}")
+    with atomic_outputs(out_dir, outputs, replace=force) as staging:
+        seed_comparison.write_seed_comparison(runs, staging, command, date, stats)
+    if not as_json:
+        click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")

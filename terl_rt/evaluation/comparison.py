@@ -354,12 +354,21 @@ class ClaimCheck:
 def claim_checks(groups: Mapping[str, Mapping[str, GroupSummary]]) -> list[ClaimCheck]:
     """Check every claim of CLAIMS on `groups` (method -> report group -> summary, as
     `method_groups` gives them) and on the paper's own tables."""
-    paper_rows = _paper_rows()
-    measured_rows = {
+    return check_claims({
         (method, group): (_metrics(s.success_rate, s.travel_time_s_mean, s.collision_ratio_mean), s.ci95)
         for method, by_group in groups.items()
         for group, s in by_group.items()
-    }
+    })
+
+
+MeasuredRows = Mapping[tuple[str, str], tuple[Mapping[str, float], Mapping[str, tuple[float, float]]]]
+"""(method, report group) -> (metric -> measured value, metric -> its 95 % interval), by the
+names success_rate, travel_time_s (s) and collision_ratio."""
+
+
+def check_claims(measured_rows: MeasuredRows) -> list[ClaimCheck]:
+    """Check every claim of CLAIMS on `measured_rows` and on the paper's own tables."""
+    paper_rows = _paper_rows()
     checks = []
     for claim in CLAIMS:
         measures = _Measures(measured_rows)

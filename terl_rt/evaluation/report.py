@@ -353,7 +353,7 @@ def render_markdown(
 def require_matplotlib() -> None:
     """Raise `MatplotlibMissing` (with the install command) unless matplotlib imports;
     check this before a long evaluation whose figure needs it."""
-    _agg_figure_classes()
+    agg_figure_classes()
 
 
 def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, title: str = "") -> Path:
@@ -367,7 +367,7 @@ def plot_results(results: Sequence[ScenarioResult], path: str | os.PathLike, tit
     TERL row of each group is a dashed line over the group's N with hollow squares;
     cc-28 (N = 28) is a star, filled for this policy, hollow for the paper.
     """
-    figure_class, canvas_class = _agg_figure_classes()
+    figure_class, canvas_class = agg_figure_classes()
     ours = _by_pursuers(r for r in results if scale_group(r.name) in ("small", "medium", "large"))
     released = _by_pursuers(r for r in results if scale_group(r.name) == SMALL_RELEASED)
     cc = [(PRESETS[r.name].pursuers, r) for r in results if scale_group(r.name) == "CC"]
@@ -466,7 +466,7 @@ def plot_comparison(
     presets the paper does not report are left out. Each method is shifted by
     METHOD_SHIFT_N pursuers from the one before.
     """
-    figure_class, canvas_class = _agg_figure_classes()
+    figure_class, canvas_class = agg_figure_classes()
     kinds = (
         ("paper's presets", ("small", "medium", "large"), "o-", {}),
         ("released small config", (SMALL_RELEASED,), "D:", {"markerfacecolor": "none"}),
@@ -523,7 +523,7 @@ def _by_pursuers(results) -> list[tuple[int, ScenarioResult]]:
     return sorted(((PRESETS[r.name].pursuers, r) for r in results), key=lambda pair: pair[0])
 
 
-def _agg_figure_classes():
+def agg_figure_classes():
     """(Figure, FigureCanvasAgg), imported here so matplotlib stays optional."""
     try:
         import matplotlib  # noqa: F401  (fails first, even when submodules are cached)

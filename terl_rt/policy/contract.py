@@ -44,6 +44,13 @@ META_TRAINING_STEPS = "terl.training_steps"
 """Metadata key (reported, optional): environment steps trained, an integer >= 0."""
 META_TRAINED_ON = "terl.trained_on"
 """Metadata key (reported, optional): the scenario set trained on."""
+META_TRAINING_CONFIG = "terl.training_config"
+"""Metadata key (reported, optional): JSON of the training config (its "seed": the training seed)."""
+META_METHOD = "terl.method"
+"""Metadata key (reported, optional): the recipe stem of a comparison's method (terl, iqn,
+dqn, mean, terl-no-re, terl-no-ts); files exported/comparison/<method>-seed-<S>.onnx."""
+META_SEED = "terl.seed"
+"""Metadata key (reported, optional): the training seed of a comparison's policy, an integer."""
 
 ACTION_TABLE_TOLERANCE = 1e-6
 """Largest difference allowed between the model's action table and PURSUER_ACTIONS."""

@@ -1,0 +1,266 @@
+"""The comparison over training seeds: terl_rt.evaluation.seed_comparison, its marl-eval
+export and `terl-rt report` on policies that carry terl.method and terl.seed.
+
+The library tests use hand-made results (tests/made_results.py) whose aggregates are
+known: every TERL seed succeeds everywhere, one IQN seed always and the other never.
+The CLI runs tiny linear policies (tests/onnx_models.py), two short episodes a scenario.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from datetime import datetime, timezone
+
+import pytest
+from click.testing import CliRunner
+from made_results import made_result
+from onnx_models import write_test_policy
+from PIL import Image
+
+from terl_rt.cli.main import cli
+from terl_rt.cli.report import over_seeds
+from terl_rt.evaluation.comparison import ComparisonError
+from terl_rt.evaluation.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
+from terl_rt.evaluation.seed_comparison import (
+    CANNOT_TELL,
+    MARL_EVAL_NAME,
+    OUTPUT_NAMES,
+    SeedRun,
+    beyond_scenarios,
+    check_seeds,
+    group_of,
+    policy_identity,
+    render_seed_markdown,
+    seed_comparison_dict,
+    seed_statistics,
+    write_seed_comparison,
+)
+from terl_rt.evaluation.speed import scaling_scenario
+from terl_rt.policy.onnx_policy import OnnxPolicy
+
+DATE = datetime(2025, 3, 1, 12, 30, tzinfo=timezone.utc)
+PRESETS = ("small-11", "small-15", "large-72", "cc-28")
+
+
+def made_run(method: str, seed: int, successes: int, travel_s: float = 40.0, collided: int = 0,
+             presets=PRESETS, episodes: int = 4) -> SeedRun:
+    """One seed's run: `successes` of `episodes` succeed on every preset."""
+    results = tuple(made_result(name, successes, travel_s, collided, episodes=episodes) for name in presets)
+    policy = {"name": method.lower(), "path": f"{method.lower()}-seed-{seed}.onnx", "sha256": "0" * 64,
+              "metadata": {"terl.training_steps": "1000000"}}
+    return SeedRun(method, seed, policy, results)
+
+
+def made_runs() -> list[SeedRun]:
+    """TERL: 2 seeds that always succeed in 40 s; IQN: seed 1 always succeeds in 60 s, seed 2 never."""
+    return [
+        made_run("IQN", 2, successes=0, travel_s=60.0, collided=10),
+        made_run("TERL", 1, successes=4), made_run("TERL", 2, successes=4),
+        made_run("IQN", 1, successes=4, travel_s=60.0),
+    ]
+
+
+def row(stats, method: str, group: str):
+    (found,) = [r for r in stats.aggregates if r.method == method and r.group == group]
+    return found
+
+
+# --- which method and seed -------------------------------------------------------------
+
+
+def test_method_and_seed_come_from_terl_method_and_terl_seed():
+    assert policy_identity({"terl.model": "terl", "terl.method": "terl-no-re", "terl.seed": "3"}) == ("w/o RE", 3)
+
+
+def test_a_file_without_them_is_its_models_method_with_its_training_configs_seed():
+    metadata = {"terl.model": "iqn", "terl.training_config": json.dumps({"seed": 7, "batch_size": 128})}
+    assert policy_identity(metadata) == ("IQN", 7)
+    assert policy_identity({"terl.model": "dqn"}) == ("DQN", None)
+
+
+def test_a_seed_that_is_no_integer_is_refused():
+    with pytest.raises(ValueError, match="'terl.seed' is 'one'"):
+        policy_identity({"terl.model": "terl", "terl.seed": "one"})
+
+
+def test_two_policies_of_one_method_and_seed_are_refused_naming_both():
+    with pytest.raises(ComparisonError, match="a.onnx and b.onnx are both method 'TERL', seed 1"):
+        check_seeds([("TERL", 1, "a.onnx"), ("IQN", 1, "c.onnx"), ("TERL", 1, "b.onnx")])
+
+
+def test_a_method_with_several_policies_needs_each_ones_seed():
+    with pytest.raises(ComparisonError, match="b.onnx has no seed"):
+        check_seeds([("TERL", 1, "a.onnx"), ("TERL", None, "b.onnx")])
+    check_seeds([("TERL", None, "a.onnx"), ("IQN", None, "b.onnx")])  # one a method: nothing to tell apart
+
+
+def test_the_worlds_beyond_the_paper_are_bench_scalings():
+    worlds = beyond_scenarios()
+    assert [w.pursuers for w in worlds] == [160, 240, 400]
+    assert [w.evaders for w in worlds] == [40, 60, 100]
+    assert worlds[0] == scaling_scenario(160)
+    assert [group_of(w.name) for w in worlds] == ["160 pursuers", "240 pursuers", "400 pursuers"]
+    assert group_of("large-72") == "large" and group_of("curriculum-1") is None
+
+
+# --- aggregates ------------------------------------------------------------------------
+
+
+def test_seeds_that_all_succeed_have_a_mean_and_interval_of_one():
+    terl = row(seed_statistics(made_runs()), "TERL", "small")
+    assert (terl.seeds, terl.presets, terl.episodes) == (2, ("small-11", "small-15"), 4)
+    assert terl.values["mean"]["success_rate"] == terl.values["iqm"]["success_rate"] == 1.0
+    assert terl.ci95["mean"]["success_rate"] == (1.0, 1.0)
+
+
+def test_a_seed_that_never_learns_stays_in_the_mean_and_widens_its_interval():
+    iqn = row(seed_statistics(made_runs()), "IQN", "large")
+    assert iqn.values["mean"]["success_rate"] == 0.5  # (1 + 0) / 2
+    low, high = iqn.ci95["mean"]["success_rate"]
+    assert low == 0.0 and high == 1.0  # resampling the seeds can draw the failed one twice, or the other
+    assert iqn.values["mean"]["collision_ratio"] == pytest.approx(0.25)  # (0 + 10 / 20) / 2
+    assert iqn.values["mean"]["travel_time_s_limit"] == pytest.approx((60.0 + 500.0) / 2)  # failures at 1000 x 0.5 s
+
+
+def test_the_probability_that_terl_does_better_counts_seed_pairs():
+    better = {(b.method, b.group): b for b in seed_statistics(made_runs()).improvements}
+    # Success: TERL's 1.0 ties IQN seed 1 (0.5) and beats seed 2 (1): (0.5 + 1) / 2. Time: 40 s < 60 s: 1.
+    assert better[("IQN", "small")].probability["success_rate"] == pytest.approx(0.75)
+    assert better[("IQN", "small")].probability["travel_time_s"] == 1.0
+    assert better[("IQN", "small")].probability["collision_ratio"] == pytest.approx(0.75)
+    assert set(b.method for b in better.values()) == {"IQN"}
+
+
+def test_claims_are_judged_on_the_means_and_say_cannot_tell_where_the_intervals_overlap():
+    runs = made_runs() + [made_run("w/o RE", 1, successes=0, travel_s=80.0),
+                          made_run("w/o RE", 2, successes=0, travel_s=80.0)]
+    verdicts = {check.claim: check.verdict for check in seed_statistics(runs).claims}
+    assert verdicts["Removing relation extraction costs success on CC"] == "reproduces"  # 0 [0, 0] < 1 [1, 1]
+    assert verdicts["TERL keeps 100 % success at medium and large scale"] == "not measured"  # no medium preset
+    # IQN's success is 0.5 [0, 1] at small and at large scale: the intervals overlap.
+    assert verdicts["IQN degrades with scale"] == CANNOT_TELL
+
+
+def test_the_markdown_names_every_seed_and_sets_the_aggregates_beside_the_paper():
+    runs = made_runs()
+    text = render_seed_markdown(runs, seed_statistics(runs), "terl-rt report --policy exported/comparison", DATE)
+    assert text.startswith("# TERL and IQN against the paper's comparison, over training seeds")
+    assert "- seeds: TERL 2 and IQN 2" in text
+    assert "| TERL | 1 | terl | `terl-seed-1.onnx` |" in text and "| IQN | 2 | iqn | `iqn-seed-2.onnx` |" in text
+    assert "| CC | IQN | 2 | 0.50 [0.00, 1.00] |" in text and text.count("| 0.00 | 150.50 | 0.93 |") == 1
+    assert "| small | IQN | 0.75 [" in text  # P(TERL better) on success
+
+
+def test_the_comparison_writes_markdown_figure_json_and_the_marl_eval_export(tmp_path):
+    pytest.importorskip("matplotlib")
+    paths = write_seed_comparison(made_runs(), tmp_path / "docs", "terl-rt report", date=DATE)
+    assert sorted(p.name for p in (tmp_path / "docs").iterdir()) == sorted(OUTPUT_NAMES)
+    with Image.open(paths.figure) as image:
+        assert image.format == "PNG" and image.size[0] >= 2.5 * image.size[1]
+    data = json.loads(paths.json.read_text())
+    assert [(r["method"], r["seed"]) for r in data["runs"]] == [("TERL", 1), ("TERL", 2), ("IQN", 1), ("IQN", 2)]
+    assert data["statistics"]["resamples"] == 2000
+    assert {(a["method"], a["group"]) for a in data["aggregates"]} == {
+        (m, g) for m in ("TERL", "IQN") for g in ("small", "large", "CC")}
+    assert set(data["aggregates"][0]["ci95"]) == {"mean", "iqm"}
+    assert len(data["claims"]) == 11
+
+
+def test_the_same_episodes_give_the_same_json():
+    first, second = (json.dumps(seed_comparison_dict(runs, seed_statistics(runs), "terl-rt report", DATE))
+                     for runs in (made_runs(), made_runs()))
+    assert first == second
+
+
+def with_returns(run: SeedRun, team_return: float) -> SeedRun:
+    """`run` with every episode's return set to `team_return` (made results have none)."""
+    return replace(run, results=tuple(
+        replace(r, per_episode=tuple(replace(m, team_return=team_return) for m in r.per_episode)) for r in run.results))
+
+
+def test_the_marl_eval_export_nests_environment_task_algorithm_run_and_step():
+    runs = [with_returns(run, 12.5) for run in made_runs()]
+    data = marl_eval_dict([(run.method, str(run.seed), run.policy, run.results) for run in runs])
+    assert list(data) == [ENVIRONMENT] == ["terl-rt"]
+    assert sorted(data["terl-rt"]) == sorted(PRESETS)
+    assert sorted(data["terl-rt"]["cc-28"]) == ["iqn", "terl"]  # the recipe stems
+    run = data["terl-rt"]["cc-28"]["iqn"]["2"]
+    assert set(run) == {STEP, ABSOLUTE} == {"step_1", "absolute_metrics"}
+    assert run["step_1"]["step_count"] == 1_000_000
+    metrics = ("success", "travel_time_s", "collision_ratio", "return")
+    assert set(run["step_1"]) == {"step_count", *metrics}
+    assert run["step_1"]["success"] == [0.0] * 4 and run["step_1"]["collision_ratio"] == [0.5] * 4
+    assert run["step_1"]["return"] == [12.5] * 4
+    assert run["absolute_metrics"] == {name: run["step_1"][name] for name in metrics}
+
+
+def test_the_marl_eval_export_leaves_out_returns_an_episode_lacks():
+    old = made_result("small-11", episodes=2)  # made episodes have no return, as logs written before it
+    data = marl_eval_dict([("TERL", "1", {}, (old,))])
+    assert "return" not in data["terl-rt"]["small-11"]["terl"]["1"]["step_1"]
+    assert data["terl-rt"]["small-11"]["terl"]["1"]["step_1"]["step_count"] == 0  # no terl.training_steps
+
+
+# --- CLI -------------------------------------------------------------------------------
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(arg) for arg in args])
+
+
+@pytest.fixture(scope="module")
+def seeded(tmp_path_factory):
+    """A folder as a grid exports it: terl and iqn, seeds 1 and 2, with terl.method and terl.seed."""
+    folder = tmp_path_factory.mktemp("comparison")
+    for index, (method, seed) in enumerate((("terl", 1), ("terl", 2), ("iqn", 1), ("iqn", 2))):
+        write_test_policy(folder / f"{method}-seed-{seed}.onnx", seed=index, model=method,
+                          metadata={"terl.method": method, "terl.seed": str(seed)})
+    return folder
+
+
+TINY = ("--scenario", "small-published-7", "--scenario", "cc-28", "--episodes", "2", "--max-steps", "2")
+
+
+def test_report_of_a_grids_folder_compares_over_seeds(seeded, tmp_path):
+    pytest.importorskip("matplotlib")
+    result = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    assert "[1/4] TERL seed 1: " in result.stderr and "[4/4] IQN seed 2: " in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(OUTPUT_NAMES)
+    assert result.stdout.strip().endswith(f"and {tmp_path / MARL_EVAL_NAME}")
+    text = (tmp_path / "comparison.md").read_text()
+    assert "- seeds: TERL 2 and IQN 2" in text and "## Probability that TERL does better" in text
+    marl = json.loads((tmp_path / MARL_EVAL_NAME).read_text())
+    assert sorted(marl["terl-rt"]["cc-28"]["terl"]) == ["1", "2"]
+    assert len(marl["terl-rt"]["cc-28"]["iqn"]["2"]["step_1"]["success"]) == 2
+
+
+def test_two_files_of_one_method_and_seed_are_one_error_line(seeded, tmp_path):
+    twin = write_test_policy(tmp_path / "twin.onnx", seed=9, model="terl", metadata={"terl.method": "terl", "terl.seed": "1"})
+    result = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--policy", twin, *TINY, "--out", tmp_path / "docs")
+    assert result.exit_code == 2
+    assert result.stderr == (f"Error: --policy: {seeded / 'terl-seed-1.onnx'} and {twin} are both method 'TERL', "
+                             "seed 1\n")
+
+
+def test_beyond_carries_one_policy_on_to_the_larger_worlds(seeded, tmp_path):
+    pytest.importorskip("matplotlib")
+    result = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--beyond", "--scenario", "small-published-7",
+                    "--episodes", "1", "--max-steps", "1", "--out", tmp_path, "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert [s["name"] for s in out["runs"][0]["scenarios"]] == ["small-published-7", "scale-160", "scale-240", "scale-400"]
+    assert [a["group"] for a in out["aggregates"]] == [
+        "small (released config)", "160 pursuers", "240 pursuers", "400 pursuers"]
+    assert "--beyond" in out["command"]
+
+
+def test_a_one_file_method_beside_a_grids_seeds_counts_as_its_training_configs_seed(seeded, tmp_path):
+    old = write_test_policy(tmp_path / "terl.onnx", seed=7, model="terl",
+                            metadata={"terl.training_config": json.dumps({"seed": 3})})
+    policies = [OnnxPolicy(path) for path in (old, seeded / "terl-seed-1.onnx")]
+    assert over_seeds(policies)
+    assert [policy_identity(p.metadata) for p in policies] == [("TERL", 3), ("TERL", 1)]
+    one_each = [OnnxPolicy(write_test_policy(tmp_path / f"{m}.onnx", model=m)) for m in ("terl", "iqn")]
+    assert not over_seeds(one_each)  # today's one file a method: the comparison without seeds
