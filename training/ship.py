@@ -79,8 +79,7 @@ def method_card(
     command = (f"python -m training grid {recipe.path} --seeds {','.join(str(cell.seed) for cell, _ in seeds)} "
                f"--out {seeds[0][0].out.parent.parent} --ship {card_folder}")
     lines = [
-        f"# {card_folder / method} — {name}, {len(seeds)} seeds of {config.schedule.total_steps // 1000:,} k "
-        "environment steps",
+        f"# {card_folder / method} — {name}, {len(seeds)} seeds of {config.schedule.total_steps:,} environment steps",
         "",
         f"The `{config.network.model}` network of the paper's comparison (policy.md sections 1 and 4), trained by "
         f"`{recipe.path}` once a seed, each seed a run of its own. Every seed stays in the table, one that never "

@@ -218,3 +218,10 @@ def test_two_recipes_of_one_method_are_refused_before_anything_runs(tmp_path, ca
     other = write_recipes(tmp_path / "b")
     assert main(["grid", str(recipes[0]), str(other[0]), "--seeds", "1", "--out", str(tmp_path / "runs")]) == 2
     assert capsys.readouterr().err.startswith("Error: ") and not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("seeds", ["1,x", "3-1", ""])
+def test_seeds_that_are_no_list_or_range_of_whole_numbers_are_one_error_line(tmp_path, capsys, seeds):
+    recipes = write_recipes(tmp_path / "recipes")
+    assert main(["grid", str(recipes[0]), "--seeds", seeds, "--out", str(tmp_path / "runs")]) == 2
+    assert capsys.readouterr().err.startswith("Error: Invalid value for '--seeds'")

@@ -18,9 +18,12 @@ def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
     for part in value.split(","):
         first, _, last = part.strip().partition("-")
         try:
-            seeds.extend(range(int(first), int(last or first) + 1))
+            span = range(int(first), int(last or first) + 1)
         except ValueError:
-            raise click.BadParameter(f"expected seeds as 1,2,3 or 1-3, got {value!r}") from None
+            span = range(0)
+        if not span:
+            raise click.BadParameter(f"expected seeds as 1,2,3 or 1-3, got {value!r}")
+        seeds.extend(span)
     return seeds
 
 
