@@ -194,10 +194,17 @@ def run_grid(
         return (f"[{len(outcome.finished) + len(outcome.done)} done, {len(running)} running, "
                 f"{len(outcome.failed)} failed, {len(waiting)} waiting]")
 
+    asked: dict[Cell, int] = {}  # signals passed on to each running cell
+
+    def pass_on(cell: Cell) -> None:
+        while asked.get(cell, 0) < len(signals):
+            runner.stop(running[cell])
+            asked[cell] = asked.get(cell, 0) + 1
+
     def ask_to_stop(number: int, frame: object) -> None:
         signals.append(signal.Signals(number).name)
-        for handle in running.values():
-            runner.stop(handle)
+        for cell in list(running):
+            pass_on(cell)
 
     handlers = {}
     if threading.current_thread() is threading.main_thread():
@@ -207,6 +214,7 @@ def run_grid(
             while waiting and len(running) < at_once and not signals:
                 cell = waiting.pop(0)
                 running[cell] = runner.start(cell)
+                pass_on(cell)  # a signal that came while it started
                 note(f"{counts()} {cell.name}: started, log {cell.log}")
             if signals and not running:
                 break
