@@ -13,7 +13,7 @@ import pytest
 
 from training.__main__ import main
 from training.checkpoint import read_counters
-from training.config import Config
+from training.config import NETWORK_FIELDS
 from training.recipe import RecipeError, load_recipe, run_recipe, segment_folder
 
 ROOT = Path(__file__).parents[1]
@@ -33,23 +33,30 @@ def test_every_recipe_loads_and_ships_a_file_of_the_repository():
         assert (ROOT / recipe.ships).is_file(), path
 
 
-def test_the_defaults_are_the_shipped_recipes_settings():
-    # The comparison's TERL changes nothing but its length; the other bodies change only the network.
-    assert load_recipe(ROOT / "recipes" / "comparison" / "terl.toml").segments[0].config == Config.of(total_steps=200_000)
-    for path in (ROOT / "recipes" / "comparison").glob("*.toml"):
-        config = load_recipe(path).segments[0].config
-        assert (config.learner, config.data, config.schedule, config.run) == (
-            Config().learner, Config().data, Config().schedule, Config().run
-        ), path
+def test_the_comparison_recipes_are_terl_papers_with_only_the_network_changed():
+    paper = load_recipe(ROOT / "recipes" / "terl-paper.toml")
+    assert paper.segments[-1].config.schedule.total_steps >= 1_000_000
+    for path in sorted((ROOT / "recipes" / "comparison").glob("*.toml")):
+        recipe = load_recipe(path)
+        assert recipe.ships_from == paper.ships_from, path
+        assert [(s.name, s.start, s.refill) for s in recipe.segments] == [(s.name, s.start, s.refill) for s in paper.segments]
+        for ours, theirs in zip(recipe.segments, paper.segments):
+            assert ours.config.network.model == path.stem
+            assert ours.config.replace(**{name: theirs.config.value(name) for name in NETWORK_FIELDS}) == theirs.config, path
 
 
 def test_every_shipped_policy_card_names_its_recipe_and_the_sha256_of_its_weights():
+    # A grid's seed (<method>-seed-<S>.onnx) is on its method's card, whose recipe is <method>.toml.
     for onnx in sorted((ROOT / "exported").rglob("*.onnx")):
-        card = onnx.with_suffix(".md").read_text()
+        seed = re.fullmatch(r"(.+)-seed-\d+", onnx.stem)
+        card = onnx.with_name(f"{seed.group(1)}.md" if seed else f"{onnx.stem}.md").read_text()
         shipped = onnx.relative_to(ROOT).as_posix()
         found = re.search(r"\*\*Recipe\*\*: \[`(recipes/[^`]+\.toml)`\]", card)
         assert found, f"{onnx.with_suffix('.md')} names no recipe"
-        assert load_recipe(ROOT / found.group(1)).ships == shipped
+        if seed:
+            assert Path(found.group(1)).stem == seed.group(1)
+        else:
+            assert load_recipe(ROOT / found.group(1)).ships == shipped
         assert f"- **Weights**: `{shipped}`, sha256 `{sha256(onnx)}`." in card
 
 
@@ -92,6 +99,24 @@ def test_a_segment_with_a_checkpoint_short_of_its_end_resumes_from_it(tmp_path):
     assert calls == [(240, second, second, True)]
 
 
+def test_a_runs_seed_replaces_every_segments_seed(tmp_path):
+    recipe = load_recipe(TINY)
+    seeds = []
+
+    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
+        seeds.append(config.run.seed)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(recipe, tmp_path / "new", stand_in, seed=7, note=lambda text: None)
+    first = segment_folder(tmp_path / "half", 1, recipe.segments[0])  # the first segment finished
+    first.mkdir(parents=True)
+    (first / "state.json").write_text(json.dumps({"format": 1, "counters": {"env_step": 160}}))
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(recipe, tmp_path / "half", stand_in, seed=7, note=lambda text: None)
+    assert seeds == [7, 7]
+
+
 def test_a_later_segment_starts_from_the_previous_ones_best_when_told(tmp_path):
     recipe_file = tmp_path / "best.toml"
     recipe_file.write_text(TINY.read_text().replace('refill = true', 'start = "best"'))
@@ -127,6 +152,43 @@ def test_a_malformed_recipe_is_refused_naming_the_segment_and_key(tmp_path, chan
     path.write_text(text.replace(change[0], change[1], 1))
     with pytest.raises(RecipeError, match=re.escape(message)):
         load_recipe(path)
+
+
+# ---------------------------------------------------------------- recipes that extend another
+def write_base_and_extension(folder: Path, extension: str) -> Path:
+    """TINY as base.toml in `folder` and `extension` as its sub/extension.toml; the extension's path."""
+    (folder / "sub").mkdir(parents=True, exist_ok=True)
+    (folder / "base.toml").write_text(TINY.read_text())
+    (folder / "sub" / "extension.toml").write_text(extension)
+    return folder / "sub" / "extension.toml"
+
+
+def test_an_extension_is_its_bases_segments_with_its_fields_in_every_one(tmp_path):
+    path = write_base_and_extension(tmp_path, 'extends = "../base.toml"\nships = "exported/other.onnx"\n'
+                                              "[network]\nhidden = 8\nheads = 1\n[learner]\nlearning_rate = 3e-3\n")
+    base, recipe = load_recipe(tmp_path / "base.toml"), load_recipe(path)
+    assert (recipe.ships, recipe.ships_from) == ("exported/other.onnx", base.ships_from)
+    assert [(s.name, s.start, s.refill) for s in recipe.segments] == [(s.name, s.start, s.refill) for s in base.segments]
+    for ours, theirs in zip(recipe.segments, base.segments):
+        # the extension's learning rate holds over the base's second segment's own 1e-4
+        assert ours.config == theirs.config.replace(hidden=8, heads=1, learning_rate=3e-3)
+
+
+@pytest.mark.parametrize(
+    ("extension", "message"),
+    [
+        ('extends = "../absent.toml"\nships = "exported/x.onnx"\n', "'extends' names"),
+        ('extends = "extension.toml"\nships = "exported/x.onnx"\n', "'extends' makes a loop"),
+        ('extends = "../base.toml"\nships = "exported/x.onnx"\n[[segment]]\nname = "a"\nsteps = 9\n',
+         "unknown key 'segment'"),
+        ('extends = "../base.toml"\nships = "exported/x.onnx"\n[schedule]\ntotal_steps = 9\n',
+         "schedule.total_steps cannot change"),
+        ('extends = "../base.toml"\nships = "exported/x.onnx"\n[network]\nheads = 3\n', "in segment 1 (curriculum)"),
+    ],
+)
+def test_a_bad_extension_is_refused_naming_the_file_and_key(tmp_path, extension, message):
+    with pytest.raises(RecipeError, match=re.escape(message)):
+        load_recipe(write_base_and_extension(tmp_path, extension))
 
 
 def test_run_of_a_missing_recipe_is_one_error_line(tmp_path, capsys):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +24,17 @@ def test_shipped_policy_meets_the_contract(path):
     assert "terl.training_steps" in report.metadata and "terl.trained_on" in report.metadata
 
 
+def grid_seed(path: Path) -> tuple[str, str] | None:
+    """(method, seed) of a grid's policy, <method>-seed-<S>.onnx (python -m training grid --ship); else None."""
+    found = re.fullmatch(r"(.+)-seed-(\d+)", path.stem)
+    return (found.group(1), found.group(2)) if found else None
+
+
 @pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_has_a_model_card(path):
-    assert path.with_suffix(".md").is_file(), f"{path.name} ships without {path.with_suffix('.md').name}"
+    seed = grid_seed(path)
+    card = path.with_name(f"{seed[0]}.md") if seed else path.with_suffix(".md")  # a grid's card: one per method
+    assert card.is_file(), f"{path.name} ships without {card.name}"
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=IDS)
@@ -40,5 +49,10 @@ def test_shipped_policy_acts_on_every_evader_slot_count(path):
 
 @pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_is_named_after_its_model(path):
-    """exported/[comparison/]<model>.onnx: the report and the comparison name a method by terl.model."""
-    assert OnnxPolicy(path, threads=1).name == path.stem
+    """exported/[comparison/]<model>.onnx, or a grid's <model>-seed-<S>.onnx tagged with its method and
+    seed: the report and the comparison name a method by terl.model (and a seed by terl.seed)."""
+    policy = OnnxPolicy(path, threads=1)
+    seed = grid_seed(path)
+    if seed:
+        assert (policy.metadata.get("terl.method"), policy.metadata.get("terl.seed")) == seed
+    assert policy.name == (seed[0] if seed else path.stem)

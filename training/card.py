@@ -13,7 +13,10 @@ import json
 import os
 from pathlib import Path
 
+import torch
+
 from training.checkpoint import load_network
+from training.config import Config
 from training.curves import read_metrics
 
 PAPER_NAMES = {
@@ -21,6 +24,8 @@ PAPER_NAMES = {
     "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
 }
 """The paper's name of each model (policy.md sections 1 and 4)."""
+DEFAULT_MACHINE = "one core of the 2-core CPU machine (one torch thread)"
+"""Where a run trained, in words, unless a card is told otherwise."""
 
 
 class CardError(ValueError):
@@ -32,11 +37,13 @@ def snapshot_table(snapshots: list[dict], preset: str) -> list[str]:
     return [
         "| step | score | current stage | " + preset + " |",
         "|---:|---:|---|---|",
-        *(_snapshot_row(record) for record in snapshots),
+        *(snapshot_row(record) for record in snapshots),
     ]
 
 
-def _snapshot_row(record: dict) -> str:
+def snapshot_row(record: dict) -> str:
+    """A snapshot record as a table row: step, score, then each evaluation's success / travel
+    time / collision ratio."""
     cells = [
         f"{e['success_rate']:.2f} / {e['travel_time_s_mean']:.1f} s / {e['collision_ratio_mean']:.3f}"
         for e in record["evaluations"]
@@ -87,12 +94,33 @@ def evaluation_lines(comparison: str | Path, model: str) -> list[str]:
 def provenance_lines(onnx: str | Path, recipe: str | Path) -> list[str]:
     """The card's lines that tie a shipped file to what made it: its recipe and the sha256 of its
     weights (the ONNX file's bytes, as `terl-rt info` and OnnxPolicy.sha256 report them)."""
-    digest = hashlib.sha256(Path(onnx).read_bytes()).hexdigest()
-    link = os.path.relpath(recipe, Path(onnx).parent)  # the card lies beside its policy
-    return [
-        f"- **Recipe**: [`{recipe}`]({link}) (`python -m training run {recipe} --out runs/{Path(onnx).stem}`).",
-        f"- **Weights**: `{onnx}`, sha256 `{digest}`.",
-    ]
+    command = f"python -m training run {recipe} --out runs/{Path(onnx).stem}"
+    return [recipe_line(recipe, Path(onnx).parent, command), weights_line(onnx)]
+
+
+def recipe_line(recipe: str | Path, card_folder: Path, command: str) -> str:
+    """The card's line naming the recipe (linked from the card's folder) and the command that runs it."""
+    return f"- **Recipe**: [`{recipe}`]({os.path.relpath(recipe, card_folder)}) (`{command}`)."
+
+
+def weights_line(onnx: str | Path) -> str:
+    """The card's line naming a shipped file and the sha256 of its bytes."""
+    return f"- **Weights**: `{onnx}`, sha256 `{hashlib.sha256(Path(onnx).read_bytes()).hexdigest()}`."
+
+
+def model_lines(model: torch.nn.Module, config: Config) -> list[str]:
+    """The card's lines on the network: its body (the first clause of its class docstring) and size."""
+    network = config.network
+    parameters = sum(p.numel() for p in model.parameters())
+    body = " ".join(type(model).__doc__.split("\n\n")[0].split(";")[0].split()).rstrip(".") + "."
+    size = f"H = {network.hidden}" + (f", L = {network.layers}, h = {network.heads}" if network.layers else "")
+    return [f"- {body}", f"- {size}: **{parameters:,} parameters**."]
+
+
+def settings(config: Config) -> str:
+    """The learner's settings a card names, in words: reward, learning rate, dropout, batch, worlds."""
+    return (f"Reward `{config.data.reward}`, learning rate {config.learner.learning_rate:g}, dropout "
+            f"{config.network.dropout:g}, batch {config.learner.batch_size}, {config.schedule.num_envs} worlds")
 
 
 def model_card(
@@ -112,12 +140,9 @@ def model_card(
     best = run / "best"
     model, config, best_counters = load_network(best if best.is_dir() else run)
     _, _, counters = load_network(run)
-    network, learner, data = config.network, config.learner, config.data
-    parameters = sum(p.numel() for p in model.parameters())
-    body = " ".join(type(model).__doc__.split("\n\n")[0].split(";")[0].split()).rstrip(".") + "."
+    network = config.network
     snapshots = [r for r in read_metrics(run / "metrics.jsonl") if r.get("kind") == "snapshot"]
     name = PAPER_NAMES.get(network.model, network.model)
-    size = f"H = {network.hidden}" + (f", L = {network.layers}, h = {network.heads}" if network.layers else "")
     lines = [
         f"# {onnx} — {name}, a run of {counters.env_step // 1000} k environment steps",
         "",
@@ -127,12 +152,10 @@ def model_card(
         *provenance_lines(onnx, recipe),
         "",
         "## Model",
-        f"- {body}",
-        f"- {size}: **{parameters:,} parameters**.",
+        *model_lines(model, config),
         "",
         "## Training",
-        f"- Reward `{data.reward}`, learning rate {learner.learning_rate:g}, dropout {network.dropout:g}, "
-        f"batch {learner.batch_size}, {config.schedule.num_envs} worlds, seed {config.run.seed}.",
+        f"- {settings(config)}, seed {config.run.seed}.",
         f"- **{counters.env_step:,} environment steps, {counters.updates:,} gradient updates, "
         f"{counters.episodes:,} episodes, {counters.wall_seconds:,.0f} s** ({counters.wall_seconds / 3600:.1f} h) "
         f"on {machine}.",

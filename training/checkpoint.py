@@ -217,16 +217,18 @@ def trained_on(stages: list[str]) -> str:
     return ",".join(stages)
 
 
-def export_checkpoint(source: str | Path, output: str | Path) -> Path:
+def export_checkpoint(source: str | Path, output: str | Path, metadata: dict[str, str] | None = None) -> Path:
     """Export a checkpoint's online network as a contract-v1 ONNX policy at `output`.
 
-    Adds `terl.training_steps` (environment steps), `terl.trained_on` and the training config
-    to the metadata; `export_onnx` checks parity with torch before returning.
+    Adds `terl.training_steps` (environment steps), `terl.trained_on`, the training config and
+    the caller's `metadata` (str -> str, e.g. a grid's `terl.method` and `terl.seed`) to the
+    metadata; `export_onnx` checks parity with torch before returning.
     """
     model, config, counters = load_network(source)
-    metadata = {
+    props = {
         META_TRAINING_STEPS: str(counters.env_step),
         META_TRAINED_ON: trained_on(counters.stages),
         META_TRAINING_CONFIG: json.dumps(config.to_dict(), sort_keys=True),
+        **(metadata or {}),
     }
-    return export_onnx(model, output, metadata)
+    return export_onnx(model, output, props)

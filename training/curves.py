@@ -25,6 +25,57 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
     return records
 
 
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend; CurvesError without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise CurvesError("plotting needs matplotlib: pip install -e '.[report]'") from None
+    return plt
+
+
+def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "") -> Path:
+    """Write a PNG of several runs' curves in one figure, a colour a run (e.g. a method's seeds).
+
+    `runs`: label -> the run's metrics records in order (every segment's metrics.jsonl, one after
+    the other). Top: success rate of the recent episodes (exploring); bottom: success rate of the
+    snapshot evaluations on the snapshot preset (the selection's episodes), the best starred.
+    x axis: environment steps. A run without records keeps its label in the legend.
+    """
+    plt = _pyplot()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for index, (label, records) in enumerate(runs.items()):
+        colour = f"C{index % 10}"
+        train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
+        top.plot([r["env_step"] for r in train], [r["success_rate"] for r in train], color=colour, label=label)
+        shown = [r for r in records if r.get("kind") == "snapshot" and len(r["evaluations"]) > 1]
+        bottom.plot([r["env_step"] for r in shown], [r["evaluations"][1]["success_rate"] for r in shown], "x-",
+                    color=colour, linewidth=0.8)
+        best = [r for r in shown if r.get("best")]
+        if best:
+            bottom.plot([best[-1]["env_step"]], [best[-1]["evaluations"][1]["success_rate"]], "*", markersize=12,
+                        color=colour)
+    preset = next((r["evaluations"][1]["scenario"] for records in runs.values() for r in records
+                   if r.get("kind") == "snapshot" and len(r["evaluations"]) > 1), "the snapshot preset")
+    top.set_ylabel("success, recent episodes")
+    bottom.set_ylabel(f"success, snapshots on {preset}")
+    bottom.set_xlabel("environment steps")
+    for axis in (top, bottom):
+        axis.set_ylim(-0.05, 1.05)
+        axis.grid(alpha=0.3)
+    top.legend(loc="upper left")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out_path = Path(out_path)
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return out_path
+
+
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
     """Write a PNG of the training curves of a run.
 
@@ -34,14 +85,7 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     episodes; bottom: their collision ratio (where logged) and the snapshots'. Curriculum stage starts are dashed vertical lines,
     resumes dotted ones (the replay buffer starts empty there). x axis: environment steps.
     """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise CurvesError("plotting needs matplotlib: pip install -e '.[report]'") from None
-
+    plt = _pyplot()
     records = read_metrics(metrics_path)
     train = [r for r in records if r.get("kind") == "train" and r.get("success_rate") is not None]
     snapshots = [r for r in records if r.get("kind") == "snapshot"]

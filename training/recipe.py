@@ -22,14 +22,27 @@ segment's network, optimizer, counters and replay buffer (a fine-tune when it ch
     curriculum = false
     scenario = "medium-48"
 
-`run_recipe` trains the segments in order into OUT/<k>-<name>/ and exports the last segment's
-best snapshot (or its last checkpoint: `ships_from = "last"`) as OUT/<stem of ships>.onnx. A
-recipe cut off (a killed run, a lost machine) runs again with the same command: finished
-segments are skipped and a segment with a checkpoint is resumed from it.
+A recipe may instead extend another (a path relative to its own folder) and change fields in
+every segment of it: its parts' fields replace the base's in each segment, over the base's own
+values; the segments, their names, steps and starts are the base's. It names the file it ships;
+`ships_from` is the base's unless it gives one. The comparison's recipes are terl-paper's this way:
+
+    extends = "../terl-paper.toml"
+    ships = "exported/comparison/iqn.onnx"
+    [network]                       # in every segment: the body of the method
+    model = "iqn"
+    layers = 0
+    heads = 0
+
+`run_recipe` trains the segments in order into OUT/<k>-<name>/ and exports the run's best
+snapshot (or the last segment's last checkpoint: `ships_from = "last"`) as OUT/<stem of
+ships>.onnx. A recipe cut off (a killed run, a lost machine) runs again with the same command:
+finished segments are skipped and a segment with a checkpoint is resumed from it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import shutil
 import sys
@@ -45,11 +58,16 @@ from typing import Any
 
 from training.checkpoint import STATE_FILE, export_checkpoint, read_counters
 from training.config import SECTIONS, Config, ConfigError, read_fields
+from training.train import BEST_FOLDER
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
 """The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""
 STARTS = ("last", "best")
 """What a later segment continues: the previous segment's last checkpoint or its best snapshot."""
+RECIPE_KEYS = ("ships", "ships_from", "segment")
+"""The top-level keys of a recipe of segments."""
+EXTENSION_KEYS = ("extends", "ships", "ships_from", *SECTIONS)
+"""The top-level keys of a recipe that extends another."""
 
 
 class RecipeError(ConfigError):
@@ -87,8 +105,9 @@ class Recipe:
         return hashlib.sha256(self.path.read_bytes()).hexdigest()
 
 
-def load_recipe(path: str | Path) -> Recipe:
-    """Read and check a recipe file; RecipeError names the file, the segment and the key at fault."""
+def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
+    """Read and check a recipe file (and the recipe it extends); RecipeError names the file, the
+    segment and the key at fault."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -96,17 +115,20 @@ def load_recipe(path: str | Path) -> Recipe:
         raise FileNotFoundError(f"{path}: no such recipe") from None
     except tomllib.TOMLDecodeError as error:
         raise RecipeError(f"{path}: not valid TOML: {error}") from None
-    unknown = sorted(set(data) - {"ships", "ships_from", "segment"})
+    known = EXTENSION_KEYS if "extends" in data else RECIPE_KEYS
+    unknown = sorted(set(data) - set(known))
     if unknown:
-        raise RecipeError(f"{path}: unknown key '{unknown[0]}' (known: ships, ships_from, segment)")
+        raise RecipeError(f"{path}: unknown key '{unknown[0]}' (known: {', '.join(known)})")
     if not isinstance(data.get("ships"), str) or not data["ships"].endswith(".onnx"):
         raise RecipeError(f"{path}: 'ships' must name the .onnx file it makes, got {data.get('ships')!r}")
     ships_from = data.get("ships_from", "best")
     if ships_from not in STARTS:
         raise RecipeError(f"{path}: 'ships_from' must be one of {', '.join(STARTS)}, got {ships_from!r}")
+    if "extends" in data:
+        return _extension(path, data, _extending)
     tables = data.get("segment")
     if not isinstance(tables, list) or not tables:
-        raise RecipeError(f"{path}: no [[segment]]; a recipe is one or more segments")
+        raise RecipeError(f"{path}: no [[segment]]; a recipe is one or more segments (or 'extends' another)")
     segments: list[Segment] = []
     config = Config()
     for index, table in enumerate(tables, start=1):
@@ -118,6 +140,30 @@ def load_recipe(path: str | Path) -> Recipe:
     if len(set(names)) != len(names):
         raise RecipeError(f"{path}: two segments share a name in {names}")
     return Recipe(path, data["ships"], ships_from, tuple(segments))
+
+
+def _extension(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Recipe:
+    """The recipe `data` of file `path` describes: its base's segments with its fields in each."""
+    if not isinstance(data["extends"], str):
+        raise RecipeError(f"{path}: 'extends' must be the path of a recipe, got {data['extends']!r}")
+    base_path = path.parent / data["extends"]
+    if base_path.resolve() in extending + (path.resolve(),):
+        raise RecipeError(f"{path}: 'extends' makes a loop through {base_path}")
+    try:
+        base = load_recipe(base_path, extending + (path.resolve(),))
+    except FileNotFoundError:
+        raise RecipeError(f"{path}: 'extends' names {base_path}, which does not exist") from None
+    changes = read_fields({section: data[section] for section in SECTIONS if section in data}, source=str(path))
+    if "total_steps" in changes:
+        raise RecipeError(f"{path}: the steps are the segments' of {base_path}; schedule.total_steps cannot change")
+    segments = []
+    for index, segment in enumerate(base.segments, start=1):
+        try:
+            config = segment.config.replace(**changes)
+        except ConfigError as error:
+            raise RecipeError(f"{path}: in segment {index} ({segment.name}) of {base_path}: {error}") from None
+        segments.append(dataclasses.replace(segment, config=config))
+    return Recipe(path, data["ships"], data.get("ships_from", base.ships_from), tuple(segments))
 
 
 def _segment(table: dict[str, Any], base: Config, previous: Segment | None, where: str) -> Segment:
@@ -163,14 +209,36 @@ def finished(folder: Path, segment: Segment) -> bool:
     return (folder / STATE_FILE).is_file() and read_counters(folder).env_step >= segment.config.schedule.total_steps
 
 
+def recipe_finished(recipe: Recipe, out: Path) -> bool:
+    """Whether every segment of `recipe` under `out` has ended and its policy is exported."""
+    done = all(finished(segment_folder(out, k, segment), segment) for k, segment in enumerate(recipe.segments, start=1))
+    return done and (out / Path(recipe.ships).name).is_file()
+
+
+def shipped_checkpoint(recipe: Recipe, out: Path) -> Path:
+    """The checkpoint of `recipe`'s run under `out` that it ships: the last segment's folder
+    (`ships_from = "last"`), else the run's best snapshot, the best/ of the segment that took it
+    (a segment continues the best score of the one before it, so a segment that never beat it
+    has no best/ of its own)."""
+    last = segment_folder(out, len(recipe.segments), recipe.segments[-1])
+    if recipe.ships_from == "last":
+        return last
+    best_step = read_counters(last).best_step
+    for k, segment in reversed(list(enumerate(recipe.segments, start=1))):
+        best = segment_folder(out, k, segment) / BEST_FOLDER
+        if (best / STATE_FILE).is_file() and read_counters(best).env_step == best_step:
+            return best
+    raise FileNotFoundError(f"{out}: no best/ snapshot of step {best_step} in any segment folder")
+
+
 Train = Callable[..., Any]
 """training.train.train, or a stand-in with its signature (config, out_dir, resume=None,
 show_progress=True, load_replay=True)."""
 
 
 def run_recipe(
-    recipe: Recipe, out: str | Path, train: Train, threads: int | None = None, show_progress: bool = True,
-    note: Callable[[str], None] = print,
+    recipe: Recipe, out: str | Path, train: Train, threads: int | None = None, seed: int | None = None,
+    show_progress: bool = True, note: Callable[[str], None] = print,
 ) -> Path:
     """Train every segment of `recipe` not yet finished under `out`, then export the policy it
     ships; returns the .onnx path (OUT/<stem of ships>.onnx).
@@ -178,14 +246,17 @@ def run_recipe(
     A segment with a checkpoint but short of its end is resumed from it; one without is started
     (its folder emptied first, so its metrics.jsonl holds one run), from nothing or from the
     previous segment's `start` checkpoint. `threads` replaces every segment's run.threads (torch
-    threads are set by the caller from the returned configs: see `python -m training run`).
+    threads are set by the caller from the returned configs: see `python -m training run`);
+    `seed` replaces every segment's run.seed (a later segment continues the generators of the one
+    before it, so the seed acts where the first starts).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    overrides = {name: value for name, value in (("threads", threads), ("seed", seed)) if value is not None}
     previous: Path | None = None
     for index, segment in enumerate(recipe.segments, start=1):
         folder = segment_folder(out, index, segment)
-        config = segment.config if threads is None else segment.config.replace(threads=threads)
+        config = segment.config.replace(**overrides)
         label = f"segment {index}/{len(recipe.segments)} ({segment.name}, to {config.schedule.total_steps:,} steps)"
         if finished(folder, segment):
             note(f"{label}: finished, in {folder}")
@@ -195,10 +266,8 @@ def run_recipe(
         else:
             if folder.exists():
                 shutil.rmtree(folder)
-            source = None if previous is None else (previous / "best" if segment.start == "best" else previous)
+            source = None if previous is None else (previous / BEST_FOLDER if segment.start == "best" else previous)
             note(f"{label}: starting" + ("" if source is None else f" from {source}"))
             train(config, folder, resume=source, show_progress=show_progress, load_replay=not segment.refill)
         previous = folder
-    assert previous is not None  # a recipe has at least one segment
-    shipped = previous / "best" if recipe.ships_from == "best" else previous
-    return export_checkpoint(shipped, out / Path(recipe.ships).name)
+    return export_checkpoint(shipped_checkpoint(recipe, out), out / Path(recipe.ships).name)

@@ -99,7 +99,7 @@ class RayBackend:
         self.threads = 1 if threads is None else threads
         self._started = not ray.is_initialized()
         if self._started:
-            _connect(address, None if workers is None else workers * self.threads)
+            connect(address, None if workers is None else workers * self.threads)
         self.workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // self.threads)
         self._models: dict[str, ray.ObjectRef] = {}
         self._task = ray.remote(batch_task).options(
@@ -184,7 +184,7 @@ def _drain(streams: dict, specs: Sequence[EpisodeSpec], deliver: Deliver) -> Non
                 break
 
 
-def _connect(address: str | None, cpus: int | None) -> None:
+def connect(address: str | None, cpus: int | None) -> None:
     """ray.init: a new local instance with `cpus` CPUs (None: this machine's), or the cluster at `address`."""
     options = {"include_dashboard": False, "logging_level": logging.WARNING}
     if address is None:

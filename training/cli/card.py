@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from training.card import DEFAULT_MACHINE
 from training.cli.options import output_option
 
 
@@ -15,7 +16,7 @@ from training.cli.options import output_option
               metavar="FILE.onnx", help="The shipped policy the card is for (its sha256 goes into the card).")
 @click.option("--recipe", type=click.Path(path_type=Path, exists=True, dir_okay=False), required=True,
               metavar="RECIPE.toml", help="The recipe that made it (recipes/*.toml).")
-@click.option("--machine", default="one core of the 2-core CPU machine (one torch thread)", show_default=True,
+@click.option("--machine", default=DEFAULT_MACHINE, show_default=True,
               help="Where the run trained, in words.")
 @click.option("--comparison", type=click.Path(path_type=Path), metavar="FILE.json",
               help="A comparison.json of `terl-rt report` (several policies) holding this model: its "

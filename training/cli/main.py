@@ -11,6 +11,7 @@ from training.cli.bench import bench_command
 from training.cli.card import card_command
 from training.cli.curves import plot_command, snapshots_command
 from training.cli.export import export_command
+from training.cli.grid import grid_command
 from training.cli.run import run_command
 from training.cli.train import train_command
 from training.cli.values import values_command
@@ -36,7 +37,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.ensure_object(dict)["debug"] = debug
 
 
-for command in (run_command, train_command, export_command, card_command, snapshots_command, plot_command,
+for command in (run_command, grid_command, train_command, export_command, card_command, snapshots_command, plot_command,
                 values_command, bench_command):
     cli.add_command(command)
 

@@ -1,0 +1,227 @@
+"""A method x seed grid (`python -m training grid`): every cell a run of its own, resumable,
+failing or stopping alone, and shipped as `<method>-seed-<S>.onnx` with one card per method."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from training.__main__ import main
+from training.grid import LocalProcesses, plan_grid, run_grid
+from training.recipe import load_recipe, segment_folder
+from training.ship import META_METHOD, META_SEED
+
+BASE = """
+ships = "exported/base.onnx"
+
+[[segment]]
+name = "first"
+steps = 80
+[segment.network]
+hidden = 16
+layers = 1
+heads = 2
+[segment.learner]
+batch_size = 16
+target_network_frequency = 40
+[segment.data]
+buffer_size = 2000
+learning_starts = 24
+[segment.schedule]
+num_envs = 4
+train_max_steps = 30
+[segment.run]
+log_frequency = 40
+checkpoint_frequency = 40
+snapshot_frequency = 40
+snapshot_episodes = 1
+snapshot_preset = "small-11"
+eval_max_steps = 10
+
+[[segment]]
+name = "second"
+steps = 120
+"""
+METHODS = {  # a method's recipe: the base with its network
+    "tiny-terl": 'extends = "base.toml"\nships = "exported/comparison/tiny-terl.onnx"\n',
+    "tiny-dqn": 'extends = "base.toml"\nships = "exported/comparison/tiny-dqn.onnx"\n[network]\nmodel = "dqn"\n'
+                "layers = 0\nheads = 0\n",
+}
+STAND_IN = """
+import pathlib, signal, sys, time
+out = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])
+if sys.argv[sys.argv.index("--seed") + 1] == "2":
+    sys.exit("ValueError: seed 2 cannot learn")
+signals = []
+signal.signal(signal.SIGTERM, lambda number, frame: signals.append(number))
+out.mkdir(parents=True)
+(out / "ready").touch()
+deadline = time.monotonic() + WAIT_S
+while not signals and time.monotonic() < deadline:
+    time.sleep(0.02)
+time.sleep(0.2)  # a second signal would arrive here
+(out / "signals").write_text(str(len(signals)))
+sys.exit(130 if signals else 0)
+"""
+"""A cell's stand-in (no torch): seed 2 fails, the others wait WAIT_S seconds or for a SIGTERM."""
+
+
+def write_recipes(folder: Path) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "base.toml").write_text(BASE)
+    paths = []
+    for method, text in METHODS.items():
+        (folder / f"{method}.toml").write_text(text)
+        paths.append(folder / f"{method}.toml")
+    return paths
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    """A 2 x 2 grid run to its end by the command, and shipped; tiny-dqn's seed 3 failed in an
+    earlier grid (its log is all there is of it)."""
+    root = tmp_path_factory.mktemp("grid")
+    recipes = write_recipes(root / "recipes")
+    (root / "runs" / "tiny-dqn").mkdir(parents=True)
+    (root / "runs" / "tiny-dqn" / "seed-3.log").write_text("ValueError: an earlier failure\n")
+    arguments = ["grid", *map(str, recipes), "--seeds", "1,2", "--out", str(root / "runs"), "--processes", "2",
+                 "--ship", str(root / "exported")]
+    assert main(arguments) == 0
+    return root, recipes, arguments
+
+
+# ---------------------------------------------------------------- running
+def test_a_grid_runs_every_cell_as_its_recipe_with_that_seed(grid):
+    root, _, _ = grid
+    for method in METHODS:
+        for seed in (1, 2):
+            cell = root / "runs" / method / f"seed-{seed}"
+            assert (cell / f"{method}.onnx").is_file()
+            assert "segment 2/2 (second, to 120 steps): starting" in (cell.with_name(f"seed-{seed}.log")).read_text()
+            config = json.loads(OnnxPolicy(cell / f"{method}.onnx").metadata["terl.training_config"])
+            assert config["run"]["seed"] == seed
+
+
+def test_a_grid_run_again_skips_finished_cells_and_resumes_a_cut_off_one_to_the_same_bytes(grid, tmp_path, capsys):
+    root, recipes, arguments = grid
+    again = tmp_path / "runs"
+    shutil.copytree(root / "runs", again)
+    recipe = load_recipe(recipes[0])
+    cut = again / "tiny-terl" / "seed-2"
+    shutil.rmtree(segment_folder(cut, 2, recipe.segments[1]))  # cut off after its first segment
+    (cut / "tiny-terl.onnx").unlink()
+    assert main(["grid", *map(str, recipes), "--seeds", "1,2", "--out", str(again)]) == 0
+    err = capsys.readouterr().err
+    assert "3 of 4 cells finished before this run: tiny-terl seed 1, tiny-dqn seed 1, tiny-dqn seed 2" in err
+    assert "tiny-terl seed 2: started" in err and err.count(": started") == 1
+    assert sha256(cut / "tiny-terl.onnx") == sha256(root / "runs" / "tiny-terl" / "seed-2" / "tiny-terl.onnx")
+
+
+# ---------------------------------------------------------------- shipping
+def test_a_shipped_grid_names_and_tags_each_seeds_policy_by_method_and_seed(grid):
+    root, _, _ = grid
+    shipped = sorted(path.name for path in (root / "exported").glob("*.onnx"))
+    assert shipped == ["tiny-dqn-seed-1.onnx", "tiny-dqn-seed-2.onnx", "tiny-terl-seed-1.onnx", "tiny-terl-seed-2.onnx"]
+    for method in METHODS:
+        for seed in (1, 2):
+            metadata = OnnxPolicy(root / "exported" / f"{method}-seed-{seed}.onnx").metadata
+            assert (metadata[META_METHOD], metadata[META_SEED]) == (method, str(seed))
+            assert metadata["terl.model"] == ("dqn" if method == "tiny-dqn" else "terl")
+
+
+def test_a_method_card_lists_every_seeds_weights_figures_and_curves(grid):
+    root, recipes, _ = grid
+    card = (root / "exported" / "tiny-dqn.md").read_text()
+    assert f"- **Recipe**: [`{recipes[1]}`]" in card
+    for seed in (1, 2):
+        onnx = root / "exported" / f"tiny-dqn-seed-{seed}.onnx"
+        assert f"- **Weights**: `{onnx}`, sha256 `{sha256(onnx)}`." in card
+        assert f"\n| {seed} | 120 | " in card
+    assert "![every seed's curves](tiny-dqn-seeds.png)" in card
+    assert (root / "exported" / "tiny-dqn-seeds.png").stat().st_size > 0
+
+
+def test_a_seed_that_did_not_finish_keeps_its_row_in_the_card(grid):
+    root, _, _ = grid
+    card = (root / "exported" / "tiny-dqn.md").read_text()
+    assert f"| 3 | not finished (failed, stopped or not run): see `{root / 'runs' / 'tiny-dqn' / 'seed-3.log'}` |" in card
+    assert "--seeds 1,2,3 " in card and not (root / "exported" / "tiny-dqn-seed-3.onnx").exists()
+
+
+# ---------------------------------------------------------------- failures and stops (stand-in cells, no torch)
+def stand_in(wait_s: float) -> LocalProcesses:
+    """Cells run by STAND_IN, waiting `wait_s` seconds."""
+    return LocalProcesses(("-c", STAND_IN.replace("WAIT_S", str(wait_s))))
+
+
+def test_a_failing_cell_gives_one_error_line_naming_its_log_and_the_others_finish(tmp_path):
+    cells = plan_grid(write_recipes(tmp_path / "recipes"), [1, 2, 3], tmp_path / "runs")
+    lines: list[str] = []
+    outcome = run_grid(cells, stand_in(wait_s=0), at_once=2, note=lines.append)
+    errors = [line for line in lines if line.startswith("Error:")]
+    log = tmp_path / "runs" / "tiny-terl" / "seed-2.log"
+    assert errors[0] == f"Error: tiny-terl seed 2 failed (exit 1): ValueError: seed 2 cannot learn; log {log}"
+    assert len(errors) == 2 and "tiny-dqn seed 2" in errors[1]
+    assert sorted(outcome.done) == ["tiny-dqn seed 1", "tiny-dqn seed 3", "tiny-terl seed 1", "tiny-terl seed 3"]
+    assert outcome.exit_status == 1
+
+
+def test_a_signal_to_the_grid_reaches_each_running_cell_once_and_starts_no_other(tmp_path):
+    cells = plan_grid(write_recipes(tmp_path / "recipes"), [1, 3], tmp_path / "runs")  # seed 1's cells first
+    started = [tmp_path / "runs" / method / "seed-1" / "ready" for method in METHODS]
+
+    def stop_when_started():
+        deadline = time.monotonic() + 60
+        while not all(path.exists() for path in started) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=stop_when_started, daemon=True).start()
+    outcome = run_grid(cells, stand_in(wait_s=60), at_once=2, note=lambda line: None)
+    for method in METHODS:
+        assert (tmp_path / "runs" / method / "seed-1" / "signals").read_text() == "1"
+        assert not (tmp_path / "runs" / method / "seed-3").exists()
+    assert sorted(outcome.stopped) == ["tiny-dqn seed 1", "tiny-dqn seed 3", "tiny-terl seed 1", "tiny-terl seed 3"]
+    assert outcome.exit_status == 130
+
+
+@pytest.mark.ray
+def test_on_ray_each_cell_is_a_task_and_a_failing_one_gives_its_error_line(tmp_path):
+    grid_ray = pytest.importorskip("training.grid_ray", reason="needs Ray: pip install -e '.[ray]'")
+    cells = plan_grid(write_recipes(tmp_path / "recipes")[:1], [1, 2], tmp_path / "runs")
+    runner = grid_ray.RayCells(None, cpus=2, program=("-c", STAND_IN.replace("WAIT_S", "0")))
+    lines: list[str] = []
+    outcome = run_grid(cells, runner, at_once=2, note=lines.append)
+    assert (outcome.done, outcome.failed) == (["tiny-terl seed 1"], ["tiny-terl seed 2"])
+    log = tmp_path / "runs" / "tiny-terl" / "seed-2.log"
+    assert [line for line in lines if line.startswith("Error:")] == [
+        f"Error: tiny-terl seed 2 failed (exit 1): ValueError: seed 2 cannot learn; log {log}"
+    ]
+
+
+# ---------------------------------------------------------------- bad input
+def test_two_recipes_of_one_method_are_refused_before_anything_runs(tmp_path, capsys):
+    recipes = write_recipes(tmp_path / "a")
+    other = write_recipes(tmp_path / "b")
+    assert main(["grid", str(recipes[0]), str(other[0]), "--seeds", "1", "--out", str(tmp_path / "runs")]) == 2
+    assert capsys.readouterr().err.startswith("Error: ") and not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("seeds", ["1,x", "3-1", ""])
+def test_seeds_that_are_no_list_or_range_of_whole_numbers_are_one_error_line(tmp_path, capsys, seeds):
+    recipes = write_recipes(tmp_path / "recipes")
+    assert main(["grid", str(recipes[0]), "--seeds", seeds, "--out", str(tmp_path / "runs")]) == 2
+    assert capsys.readouterr().err.startswith("Error: Invalid value for '--seeds'")

@@ -1,0 +1,242 @@
+"""A method x seed grid of recipes, each cell a run of its own: `python -m training run RECIPE
+--out OUT/<method>/seed-<S> --seed S --threads 1` in a process of its own, on this machine or
+as a Ray task (training.grid_ray), its output in OUT/<method>/seed-<S>.log.
+
+A method is a recipe's file stem (recipes/comparison/iqn.toml: iqn). A cell is resumable as
+its recipe is: the grid run again skips the cells that have finished and starts the others,
+which go on from their last checkpoints. A cell that fails is reported in one line and the
+others go on; SIGINT or SIGTERM is passed to every running cell once, so each writes a whole
+checkpoint before it ends (training.stops), and no new cell starts.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from training.recipe import Recipe, RecipeError, load_recipe, recipe_finished
+
+RUN_PROGRAM = ("-m", "training", "run")
+"""The Python arguments that run one cell's recipe (the cell's own arguments follow)."""
+STOPPED = 130
+"""Exit status of a cell stopped by a signal after writing its checkpoint (training.__main__)."""
+POLL_S = 0.2
+"""Seconds between looks at the running cells."""
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One seed of one method: a recipe's run under its own folder."""
+
+    method: str
+    """the recipe's file stem (e.g. iqn): the name of its folder and of its shipped files."""
+    seed: int
+    """the run's seed (RunConfig.seed of every segment)."""
+    recipe: Path
+    """the recipe file."""
+    out: Path
+    """the run's folder: GRID_OUT/<method>/seed-<seed>."""
+
+    @property
+    def name(self) -> str:
+        """The cell as progress lines name it: "iqn seed 2"."""
+        return f"{self.method} seed {self.seed}"
+
+    @property
+    def log(self) -> Path:
+        """The cell's stdout and stderr, every attempt appended: GRID_OUT/<method>/seed-<seed>.log."""
+        return self.out.with_name(f"{self.out.name}.log")
+
+    def arguments(self) -> list[str]:
+        """The arguments of `python -m training run` (after RUN_PROGRAM) that make this cell."""
+        return [str(self.recipe), "--out", str(self.out), "--seed", str(self.seed), "--threads", "1", "--quiet"]
+
+
+def method_name(recipe: Path) -> str:
+    """A recipe's method: its file stem."""
+    return recipe.stem
+
+
+def plan_grid(
+    recipes: Sequence[Path], seeds: Sequence[int], out: Path, found_seeds: bool = False,
+) -> list[tuple[Cell, Recipe]]:
+    """Every cell of the grid with its recipe, seed by seed (every method's first seed first, so
+    a grid cut short holds whole seeds of the comparison). `found_seeds`: each method also with
+    the seeds its folder already holds (OUT/<method>/seed-<S>), as its card lists them. Every
+    recipe is read first: RecipeError names a bad one, or two recipes with one method name,
+    before anything runs."""
+    methods: dict[str, Path] = {}
+    for path in recipes:
+        other = methods.setdefault(method_name(path), path)
+        if other != path:
+            raise RecipeError(f"{other} and {path} are both method '{method_name(path)}'; a grid's recipes need distinct file names")
+    if len(set(seeds)) != len(seeds):
+        raise RecipeError(f"the seeds {list(seeds)} repeat one")
+    loaded = {method: load_recipe(path) for method, path in methods.items()}
+    every = {method: set(seeds) | (seeds_in(out / method) if found_seeds else set()) for method in methods}
+    return [
+        (Cell(method, seed, path, out / method / f"seed-{seed}"), loaded[method])
+        for seed in sorted(set().union(*every.values())) for method, path in methods.items() if seed in every[method]
+    ]
+
+
+def seeds_in(folder: Path) -> set[int]:
+    """The seeds of a method's grid folder: those of its seed-<S> folders and logs."""
+    if not folder.is_dir():
+        return set()
+    names = (path.name.removesuffix(".log") for path in folder.iterdir())
+    return {int(name[5:]) for name in names if name.startswith("seed-") and name[5:].isdigit()}
+
+
+class CellRunner(Protocol):
+    """Where cells run (LocalProcesses here, training.grid_ray.RayCells on a Ray cluster)."""
+
+    def start(self, cell: Cell) -> Any:
+        """Start the cell's run, its output appended to cell.log; returns a handle."""
+
+    def poll(self, handle: Any) -> int | None:
+        """The run's exit status once it has ended (STOPPED: stopped with a checkpoint), else None."""
+
+    def stop(self, handle: Any) -> None:
+        """Ask the run to stop: it writes a whole checkpoint and ends (asked twice: it ends at once)."""
+
+    def close(self) -> None:
+        """Release what the runner holds (the runs have ended)."""
+
+
+class LocalProcesses:
+    """Cells as processes of this machine, each in its own session (a terminal's Ctrl-C reaches
+    the grid alone, which passes it on once), one torch and one BLAS thread each."""
+
+    def __init__(self, program: Sequence[str] = RUN_PROGRAM) -> None:
+        self.program = list(program)
+
+    def start(self, cell: Cell) -> subprocess.Popen:
+        cell.log.parent.mkdir(parents=True, exist_ok=True)
+        with open(cell.log, "ab") as log:
+            return subprocess.Popen(
+                [sys.executable, *self.program, *cell.arguments()], stdin=subprocess.DEVNULL, stdout=log,
+                stderr=subprocess.STDOUT, start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
+            )
+
+    def poll(self, handle: subprocess.Popen) -> int | None:
+        return handle.poll()
+
+    def stop(self, handle: subprocess.Popen) -> None:
+        if handle.poll() is None:
+            handle.send_signal(signal.SIGTERM)
+
+    def close(self) -> None:
+        pass
+
+
+@dataclass
+class GridOutcome:
+    """How the cells of a grid ended, by cell name."""
+
+    finished: list[str]
+    """cells finished before this run of the grid."""
+    done: list[str]
+    """cells that finished in this run."""
+    failed: list[str]
+    """cells whose run ended in an error (their log says which)."""
+    stopped: list[str]
+    """cells stopped by a signal with a whole checkpoint, or never started after one: they go on
+    when the grid runs again."""
+
+    @property
+    def exit_status(self) -> int:
+        """0: every cell finished; 130: stopped by a signal; 1: some cell failed."""
+        return 1 if self.failed else STOPPED if self.stopped else 0
+
+
+def last_line(path: Path, limit: int = 300) -> str:
+    """The last non-empty line of a text file (at most `limit` characters; "" when none)."""
+    try:
+        with open(path, "rb") as handle:
+            handle.seek(max(0, handle.seek(0, os.SEEK_END) - 4096))
+            lines = [line.strip() for line in handle.read().decode(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:limit] if lines else ""
+
+
+def run_grid(
+    cells: Sequence[tuple[Cell, Recipe]], runner: CellRunner, at_once: int, note: Callable[[str], None],
+) -> GridOutcome:
+    """Run every cell not finished yet, at most `at_once` together, until each has ended.
+
+    `note` gets a line for each cell that starts or ends, with the counts so far; a failed cell's
+    line starts with "Error:" and names its log. SIGINT and SIGTERM (in the main thread) stop
+    the grid: each is passed on to the running cells, and no cell starts after one.
+    """
+    outcome = GridOutcome([], [], [], [])
+    waiting: list[Cell] = []
+    for cell, recipe in cells:
+        if recipe_finished(recipe, cell.out):
+            outcome.finished.append(cell.name)
+        else:
+            waiting.append(cell)
+    if outcome.finished:
+        note(f"{len(outcome.finished)} of {len(cells)} cells finished before this run: {', '.join(outcome.finished)}")
+    running: dict[Cell, Any] = {}
+    signals: list[str] = []
+
+    def counts() -> str:
+        return (f"[{len(outcome.finished) + len(outcome.done)} done, {len(running)} running, "
+                f"{len(outcome.failed)} failed, {len(waiting)} waiting]")
+
+    asked: dict[Cell, int] = {}  # signals passed on to each running cell
+
+    def pass_on(cell: Cell) -> None:
+        while asked.get(cell, 0) < len(signals):
+            runner.stop(running[cell])
+            asked[cell] = asked.get(cell, 0) + 1
+
+    def ask_to_stop(number: int, frame: object) -> None:
+        signals.append(signal.Signals(number).name)
+        for cell in list(running):
+            pass_on(cell)
+
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {number: signal.signal(number, ask_to_stop) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while waiting or running:
+            while waiting and len(running) < at_once and not signals:
+                cell = waiting.pop(0)
+                running[cell] = runner.start(cell)
+                pass_on(cell)  # a signal that came while it started
+                note(f"{counts()} {cell.name}: started, log {cell.log}")
+            if signals and not running:
+                break
+            time.sleep(POLL_S)
+            for cell, handle in list(running.items()):
+                status = runner.poll(handle)
+                if status is None:
+                    continue
+                del running[cell]
+                if status == 0:
+                    outcome.done.append(cell.name)
+                    note(f"{counts()} {cell.name}: finished")
+                elif status == STOPPED or signals:
+                    outcome.stopped.append(cell.name)
+                    note(f"{counts()} {cell.name}: stopped with a checkpoint; the grid run again goes on from it")
+                else:
+                    outcome.failed.append(cell.name)
+                    note(f"Error: {cell.name} failed (exit {status}): {last_line(cell.log) or 'no output'}; "
+                         f"log {cell.log}")
+    finally:
+        for number, handler in handlers.items():
+            signal.signal(number, handler)
+        runner.close()
+    outcome.stopped.extend(cell.name for cell in waiting)
+    return outcome
