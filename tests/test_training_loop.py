@@ -4,6 +4,7 @@ checkpoint/resume/export round trip (policy.md section 2)."""
 from __future__ import annotations
 
 import json
+import signal
 from collections import deque
 
 import numpy as np
@@ -19,11 +20,13 @@ from terl_rt.sim.world import StepResult, World
 from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import Config, ConfigError
+from training.stops import TrainingStopped
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.buffer import ReplayBuffer
 from training.train import (
     METRICS_FILE,
     build_learner,
+    epsilon_greedy,
     learn,
     recent_means,
     train,
@@ -251,38 +254,49 @@ def test_network_overfits_a_tiny_fixed_batch():
     assert np.mean(losses[-10:]) < 0.2 * np.mean(losses[:10])
 
 
-def test_a_resume_without_its_buffer_refills_it_to_what_it_held_before_updating(tmp_path):
-    # 3 pursuers in each of 8 worlds: a 200-step run leaves about 600 transitions in a
-    # buffer of 10,000; without replay.npz the resume refills that many (about 200 more
-    # steps) before its first update, however small learning_starts is.
+def test_a_resume_without_its_buffer_refills_it_before_updating_and_the_refill_steps_do_not_count(tmp_path):
+    # 3 pursuers in each of 8 worlds: a 200-step run leaves about 600 transitions in a buffer
+    # of 10,000; without replay.npz the resume refills that many (about 200 more steps) at step
+    # 200, as if it had never stopped, and then takes the 80 steps to 280: updates at the
+    # multiples of train_frequency 4 in (200, 280], 20 of them.
     config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
                          learning_starts=80, snapshot_frequency=0, save_replay=False)
     out = tmp_path / "run"
     before = train(config, out, show_progress=False)
     assert 0 < before.replay_transitions <= 600 and read_counters(out).replay_transitions == before.replay_transitions
 
-    short = train(config.replace(total_steps=280, learning_starts=8), tmp_path / "short", resume=out, show_progress=False)
-    assert short.updates == before.updates  # 80 steps refill less than it held: no update yet
-    note = next(json.loads(line)["note"] for line in (tmp_path / "short" / METRICS_FILE).read_text().splitlines()
+    resumed = train(config.replace(total_steps=280, learning_starts=8), tmp_path / "resumed", resume=out, show_progress=False)
+    assert resumed.env_step == 280 and resumed.updates == before.updates + 80 // 4
+    note = next(json.loads(line)["note"] for line in (tmp_path / "resumed" / METRICS_FILE).read_text().splitlines()
                 if json.loads(line)["kind"] == "resume")
     assert f"refilled to the {before.replay_transitions:,} transitions it held" in note
 
-    long = train(config.replace(total_steps=600, learning_starts=8), tmp_path / "long", resume=out, show_progress=False)
-    assert long.updates > before.updates  # refilled after about 200 steps, updating again after
-    assert long.updates < before.updates + (600 - 200 - before.replay_transitions // 3) // 4 + 1
 
-
-def test_a_refill_cut_off_goes_on_after_the_next_resume(tmp_path):
-    # The resume to 280 ends mid-refill and saves the part it refilled; the checkpoint still owes
-    # what the buffer held, so the next resume refills on instead of updating on the part.
+def test_a_refill_stopped_midway_goes_on_after_the_next_resume(tmp_path, monkeypatch):
+    # SIGTERM during the refill: the checkpoint keeps the part refilled and still owes what the
+    # buffer held, so the next resume refills on instead of updating on the part.
     config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
                          learning_starts=80, snapshot_frequency=0, save_replay=False)
     out = tmp_path / "run"
     before = train(config, out, show_progress=False)
-    cut = train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
-    assert cut.updates == before.updates and cut.replay_transitions == before.replay_transitions
-    again = train(config.replace(total_steps=320, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
-    assert again.updates == before.updates  # still refilling at 320
+    calls = 0
+
+    def act_then_stop(*args):
+        nonlocal calls
+        calls += 1
+        if calls == 5:  # 40 steps into a refill of about 200
+            signal.raise_signal(signal.SIGTERM)
+        return epsilon_greedy(*args)
+
+    monkeypatch.setattr("training.train.epsilon_greedy", act_then_stop)
+    with pytest.raises(TrainingStopped):
+        train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    cut = read_counters(out)
+    assert cut.env_step == 200 and cut.updates == before.updates and cut.replay_transitions == before.replay_transitions
+    monkeypatch.undo()
+
+    again = train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
+    assert again.updates == before.updates + 80 // 4
     note = [json.loads(line)["note"] for line in (out / METRICS_FILE).read_text().splitlines() if '"resume"' in line][-1]
     assert "a refill cut off" in note and f"refilled to the {before.replay_transitions:,} transitions it held" in note
 

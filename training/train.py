@@ -437,14 +437,15 @@ before snapshots ran through terl_rt.evaluation (None there) do not compare with
 
 def restore_buffer(
     resume: Path, saved_config: Config, config: Config, counters: Counters, buffer: ReplayBuffer, load: bool = True
-) -> tuple[int, int, str]:
+) -> tuple[int, str]:
     """Load a resumed run's replay buffer when it was saved, fits and `load` is true, else plan its refill.
 
-    Returns the environment step updates may start at, the transitions the buffer must hold
-    again before they do (0: none to wait for) and the note that says which. Without a saved
-    buffer it is refilled to the transitions it held (`Counters.replay_transitions`; its
-    capacity for older checkpoints), and for at least `learning_starts` environment steps:
-    updating on a buffer a tenth as full as before made the policy collapse within 20 k steps.
+    Returns the transitions the buffer must hold again before updates resume (0: none to wait
+    for) and the note that says which. Without a saved buffer it is refilled to the transitions
+    it held (`Counters.replay_transitions`; its capacity for older checkpoints), and for at
+    least `learning_starts` environment steps: updating on a buffer a tenth as full as before
+    made the policy collapse within 20 k steps. The refill's environment steps do not count
+    toward the schedule (`train`).
     """
     learning_starts = config.data.learning_starts
     saved = resume / REPLAY_FILE
@@ -459,7 +460,7 @@ def restore_buffer(
             unused = f"its saved replay buffer does not fit ({error})"
     owed = min(buffer.capacity, counters.replay_transitions or 0)  # what it held before any refill cut off
     if len(buffer) and len(buffer) >= owed:
-        return learning_starts, 0, (
+        return 0, (
             f"resumed from {resume} at environment step {counters.env_step} with its replay buffer "
             f"({len(buffer):,} transitions)"
         )
@@ -472,9 +473,10 @@ def restore_buffer(
         held = f"its capacity, {refill_to:,} transitions (the checkpoint held {counters.replay_transitions:,})"
     else:
         held = f"the {refill_to:,} transitions it held"
-    return counters.env_step + learning_starts, refill_to, (
+    return refill_to, (
         f"resumed from {resume} at environment step {counters.env_step}; {unused}, it is refilled to {held}, "
-        f"and for at least {learning_starts} environment steps, before updates resume"
+        f"and for at least {learning_starts} environment steps, before updates resume; the refill's steps "
+        "do not count toward the schedule"
     )
 
 
@@ -517,10 +519,10 @@ def train(
     progress = Progress(show_progress, counters.env_step)
     scenarios = training_scenarios(schedule, data.reward, counters.env_step)
     buffer = ReplayBuffer(data.buffer_size, buffer_evader_slots(scenarios))
-    learning_starts, refill_to = data.learning_starts, 0
+    refill_to = 0  # transitions a resume's buffer must hold again before updates resume
     if resume is not None:
         progress.show(f"loading the replay buffer of {resume}")
-        learning_starts, refill_to, note = restore_buffer(resume, saved_config, config, counters, buffer, load_replay)
+        refill_to, note = restore_buffer(resume, saved_config, config, counters, buffer, load_replay)
         # A fine-tune that evaluates snapshots on other scenarios, or a run whose snapshots were
         # measured by another evaluator, starts its own best: such scores do not compare.
         evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
@@ -544,6 +546,7 @@ def train(
     last_loss: float | None = None
     session_start, session_step = time.perf_counter(), counters.env_step
     wall_before = counters.wall_seconds
+    refill_steps = 0  # environment steps of the refill: the schedule (stage, epsilon, step size) waits for them
 
     with StopRequests() as stops:
         while counters.env_step < schedule.total_steps:
@@ -556,7 +559,7 @@ def train(
                     counters.stages.append(stage_name)
                 write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
                 progress.note(f"environment step {counters.env_step}: stage {stage_name}")
-            group = groups[counters.env_step // num_envs % len(groups)]
+            group = groups[(counters.env_step + refill_steps) // num_envs % len(groups)]
 
             # --- collect: one batched forward for every active pursuer, epsilon-greedy each
             epsilon = linear_schedule(
@@ -584,14 +587,18 @@ def train(
                 group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
                 counters.episodes += 1
             previous_step = counters.env_step
-            counters.env_step += num_envs
+            if refill_to:  # a resume refills its buffer at the step it stopped, as if it had never stopped
+                refill_steps += num_envs
+                if len(buffer) >= refill_to and refill_steps >= data.learning_starts:
+                    refill_to = 0
+                    progress.note(f"environment step {counters.env_step}: refilled in {refill_steps:,} steps, updates resume")
+            else:
+                counters.env_step += num_envs
 
             # --- learn: the updates due in this batch step, then the target copy when due
-            if refill_to and len(buffer) >= refill_to:
-                learning_starts, refill_to = max(learning_starts, counters.env_step), 0
-            if not refill_to and counters.env_step >= learning_starts and len(buffer) >= learner.batch_size:
+            if not refill_to and counters.env_step >= data.learning_starts and len(buffer) >= learner.batch_size:
                 # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
-                due = crossings(max(previous_step, learning_starts), counters.env_step, learner.train_frequency)
+                due = crossings(max(previous_step, data.learning_starts), counters.env_step, learner.train_frequency)
                 for _ in range(due):
                     batch = buffer.sample(learner.batch_size, rng)
                     last_loss = learn(model, target, optimizer, batch, learner)
@@ -635,7 +642,10 @@ def train(
                 }
                 write_record(log_path, record)
                 losses.clear()
-            if progress.due() or finished:
+            if progress.due() and refill_to:
+                progress.steps_per_second(counters.env_step)  # starts the next refresh window
+                progress.show(f"step {counters.env_step:,}: refilling the replay buffer, {len(buffer):,}/{refill_to:,} transitions")
+            elif progress.due() or finished:
                 means = recent_means(recent)
                 success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
                 loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
