@@ -13,17 +13,13 @@ from pathlib import Path
 from typing import Any
 
 from terl_rt.files import atomic_output
+from terl_rt.policy.contract import META_METHOD, META_SEED
 from training.card import PAPER_NAMES, model_lines, recipe_line, settings, snapshot_row, weights_line
 from training.checkpoint import Counters, export_checkpoint, network_from_config, read_counters
 from training.curves import plot_seed_curves, read_metrics
 from training.grid import Cell
 from training.recipe import Recipe, recipe_finished, segment_folder, shipped_checkpoint
 from training.train import METRICS_FILE
-
-META_METHOD = "terl.method"
-"""Metadata key of a grid's policy: its method, the recipe's file stem (e.g. iqn)."""
-META_SEED = "terl.seed"
-"""Metadata key of a grid's policy: the seed of its run, an integer."""
 
 
 def seed_file(folder: Path, cell: Cell) -> Path:

@@ -18,7 +18,7 @@ from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
 from training.grid import LocalProcesses, plan_grid, run_grid
 from training.recipe import load_recipe, segment_folder
-from training.ship import META_METHOD, META_SEED
+from terl_rt.policy.contract import META_METHOD, META_SEED
 
 BASE = """
 ships = "exported/base.onnx"
