@@ -120,7 +120,7 @@ class Stopped(KeyboardInterrupt):
     128 + `signum`, as a process ended by that signal would."""
 
     def __init__(self, signum: int):
-        super().__init__(f"stopped by {signal.Signals(signum).name}; what had been run is kept")
+        super().__init__(f"stopped by {signal.Signals(signum).name}; a --log keeps every step run so far")
         self.signum = signum
 
 
