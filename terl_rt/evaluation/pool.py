@@ -23,6 +23,7 @@ from collections import deque
 from collections.abc import Sequence
 from multiprocessing import Pipe
 from multiprocessing.connection import wait
+from typing import Any
 
 from terl_rt.evaluation import worker
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
@@ -192,7 +193,7 @@ def _run_in_workers(
                 raise_stop(received)
                 one.send_policies(models, 1 if threads is None else threads)
                 one.give(todo.popleft())
-            by_connection = {one.connection: one for one in started}
+            by_connection: dict[Any, _Worker] = {one.connection: one for one in started}
             while ended < len(specs):
                 raise_stop(received)
                 if not by_connection:  # never so: each batch ends its episodes; but no wait without end
@@ -230,7 +231,7 @@ def _run_in_workers(
 def _drain(busy: list[_Worker], deliver: Deliver) -> None:
     """Deliver what the `busy` workers still send until each has stopped (at most DRAIN_S)."""
     deadline = time.monotonic() + DRAIN_S
-    waiting = {one.connection: one for one in busy}
+    waiting: dict[Any, _Worker] = {one.connection: one for one in busy}
     while waiting and time.monotonic() < deadline:
         for connection in wait(list(waiting), min(0.1, max(0.0, deadline - time.monotonic()))):
             one = waiting[connection]
