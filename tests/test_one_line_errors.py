@@ -4,31 +4,13 @@ from __future__ import annotations
 
 import builtins
 import errno
-from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
-from onnx_models import write_test_policy
+from one_line import invoke
 
 import terl_rt.logs.writer
-from terl_rt.cli.main import cli
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
-
-
-@pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict[str, Path]:
-    folder = tmp_path_factory.mktemp("errors")
-    policy = write_test_policy(folder / "linear.onnx")
-    log = folder / "eval.mcap"
-    result = invoke("eval", "--policy", policy, "--scenario", "small-11", "--episodes", "1", "--max-steps", "3",
-                    "--log", log)
-    assert result.exit_code == 0, result.output
-    return {"folder": folder, "policy": policy, "log": log}
-
-
-def invoke(*args):
-    return CliRunner().invoke(cli, [str(arg) for arg in args])
 
 
 def assert_one_error(result, *words):
@@ -61,9 +43,9 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", list(CASES))
-def test_bad_input_is_one_error_line(files, case):
+def test_bad_input_is_one_error_line(logged_eval, case):
     args, word = CASES[case]
-    result = invoke(*(arg.format(**files) for arg in args))
+    result = invoke(*(arg.format(**logged_eval) for arg in args))
     assert_one_error(result, word)
 
 
@@ -86,13 +68,13 @@ class _FullDisk:
         return getattr(self._handle, name)
 
 
-def test_a_full_disk_while_logging_is_one_line_and_keeps_the_complete_steps(files, tmp_path, monkeypatch):
+def test_a_full_disk_while_logging_is_one_line_and_keeps_the_complete_steps(logged_eval, tmp_path, monkeypatch):
     def full_open(path, mode="r", *args, **kwargs):
         return _FullDisk(builtins.open(path, mode, *args, **kwargs), 60_000)
 
     monkeypatch.setattr(terl_rt.logs.writer, "open", full_open, raising=False)
     log = tmp_path / "full.mcap"
-    result = invoke("eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "2",
+    result = invoke("eval", "--policy", logged_eval["policy"], "--scenario", "small-11", "--episodes", "2",
                     "--max-steps", "100", "--log", log)
     # The progress bar's label may precede it on stderr; the error itself is one line.
     assert result.exit_code == 2, result.output

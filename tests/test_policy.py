@@ -26,6 +26,7 @@ from onnx_models import (
 from terl_rt.policy.onnx_policy import (
     ContractError,
     OnnxPolicy,
+    PolicyOutput,
     action_to_control,
     check_contract,
     open_session,
@@ -372,3 +373,13 @@ def test_importing_the_policy_module_loads_neither_torch_nor_onnx():
         [sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, check=True
     )
     assert result.stdout.strip() == "[]"
+
+
+def test_first_non_finite_names_the_output_its_row_and_the_value():
+    # Row 1 of q_values holds inf; target_weights' NaN comes later in the order checked.
+    output = PolicyOutput(q_values=np.array([[0.0, 1.0], [2.0, np.inf]], np.float32),
+                          target_weights=np.array([[np.nan], [0.0]], np.float32), actions=np.array([1, 0]))
+    assert output.first_non_finite() == ("q_values", 1, np.inf)
+    name, row, value = dataclasses.replace(output, q_values=np.zeros((2, 2), np.float32)).first_non_finite()
+    assert (name, row, np.isnan(value)) == ("target_weights", 0, True)
+    assert dataclasses.replace(output, target_weights=None, q_values=np.zeros((2, 2))).first_non_finite() is None

@@ -163,6 +163,26 @@ def test_ctrl_c_of_a_ray_run_writes_every_received_step_and_stops_ray(policy_pat
     assert all(verify(log, e.number).ok for e in reader.episodes)
 
 
+def test_sigterm_of_a_ray_run_writes_every_received_step_and_exits_143(policy_path, tmp_path):
+    """Not Ray's stack dump and SIGABRT: the run stops as for Ctrl-C, with status 128 + SIGTERM."""
+    log = tmp_path / "terminated.mcap"
+    process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)
+    try:
+        wait_for_log(process, log)
+        ray_processes = descendants(process.pid)
+        os.kill(process.pid, signal.SIGTERM)  # `kill PID`
+        assert process.wait(timeout=30) == 128 + signal.SIGTERM
+        assert_all_end(ray_processes, limit_s=10)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    reader = EpisodeLogReader(log)
+    assert not reader.truncated, reader.problem
+    assert reader.episodes and all(e.steps > 0 for e in reader.episodes)
+    assert all(verify(log, e.number).ok for e in reader.episodes)
+
+
 def test_sigkill_of_a_ray_run_keeps_the_streamed_steps_and_ends_its_workers(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
     process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)

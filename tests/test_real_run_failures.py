@@ -36,14 +36,10 @@ SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[Healt
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict:
+def files(logged_eval, tmp_path_factory) -> dict:
+    """The shared logged eval's policy and log, a policy that fails inside onnxruntime and a folder for outputs."""
     folder = tmp_path_factory.mktemp("failures")
-    good = write_test_policy(folder / "linear.onnx")
-    log = folder / "run.mcap"
-    result = invoke("eval", "--policy", good, "--scenario", "small-11", "--episodes", "2", "--max-steps", "30",
-                    "--log", log)
-    assert result.exit_code == 0, result.output
-    return {"folder": folder, "good": good, "failing": write_failing_policy(folder / "failing.onnx"), "log": log}
+    return {**logged_eval, "folder": folder, "failing": write_failing_policy(folder / "failing.onnx")}
 
 
 # --- a policy that loads but fails inside onnxruntime -------------------------------------
@@ -59,7 +55,7 @@ def test_a_policy_failing_inside_onnxruntime_names_the_policy_the_batch_and_the_
 
 
 def test_an_allocation_onnxruntime_cannot_make_says_the_policy_ran_out_of_memory(files, monkeypatch):
-    policy = OnnxPolicy(files["good"])
+    policy = OnnxPolicy(files["policy"])
 
     class Session:  # what onnxruntime raises when its arena cannot grow
         def run(self, names, feed):
@@ -113,7 +109,7 @@ def test_decide_refuses_a_policy_that_outputs_nan(tmp_path):
 @pytest.mark.parametrize("heading", ["0.3", b"1", True, None, [0.1], math.nan, 1e300])
 def test_decide_refuses_a_heading_that_is_not_a_number_by_name(files, heading):
     with pytest.raises(ValueError, match="ego_heading"):
-        decide(OnnxPolicy(files["good"]), (10.0, 10.0), heading, (0.0, 0.0))
+        decide(OnnxPolicy(files["policy"]), (10.0, 10.0), heading, (0.0, 0.0))
 
 
 @SETTINGS
@@ -234,7 +230,7 @@ def test_a_scenario_name_that_cannot_be_printed_is_refused(name):
 def test_a_scenario_file_named_with_an_unpaired_surrogate_is_one_line_before_any_episode(files, tmp_path):
     path = tmp_path / "surrogate.json"
     path.write_text(json.dumps(Scenario.preset("small-11").to_dict() | {"name": "x\ud800"}))
-    result = invoke("eval", "--policy", files["good"], "--scenario-file", path, "--csv", tmp_path / "e.csv")
+    result = invoke("eval", "--policy", files["policy"], "--scenario-file", path, "--csv", tmp_path / "e.csv")
     assert_one_error(result, "name")
     assert not (tmp_path / "e.csv").exists()
 
@@ -394,7 +390,7 @@ def test_sigterm_or_sighup_of_a_logged_run_keeps_its_complete_steps(files, tmp_p
     log = tmp_path / "stopped.mcap"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     process = subprocess.Popen(
-        [sys.executable, "-m", "terl_rt", "eval", "--policy", str(files["good"]), "--scenario", "small-11",
+        [sys.executable, "-m", "terl_rt", "eval", "--policy", str(files["policy"]), "--scenario", "small-11",
          "--episodes", "6", "--max-steps", "400", "--log", str(log)],
         cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         preexec_fn=lambda: signal.signal(signum, signal.SIG_DFL),  # under nohup, SIGHUP comes ignored

@@ -138,6 +138,6 @@ def test_a_policy_with_non_finite_outputs_stops_the_run_naming_policy_and_step(t
 
 def test_a_worker_whose_parent_died_while_it_started_ends_at_once():
     # The worker is told its parent's pid; a different parent (it was re-parented) ends it.
-    code = "from terl_rt.evaluation.pool import _die_with_parent; _die_with_parent(-1); print('alive')"
+    code = "from terl_rt.evaluation.worker import _die_with_parent; _die_with_parent(-1); print('alive')"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert result.returncode == 1 and "alive" not in result.stdout

@@ -17,7 +17,7 @@ from terl_rt.cli.replay import replay
 from terl_rt.cli.report import report_command
 from terl_rt.cli.scenarios import scenarios
 from terl_rt.cli.sweep import sweep_command
-from terl_rt.evaluation.runs import BackendError
+from terl_rt.evaluation.runs import BackendError, Stopped
 from terl_rt.logs.format import EpisodeLogError
 from terl_rt.logs.render import RenderError
 from terl_rt.policy.contract import ContractError
@@ -47,6 +47,13 @@ class TerlGroup(click.Group):
             where = f" (see {err.ctx.command_path} -h)" if err.ctx is not None else ""
             click.echo(f"Error: {one_line(click.ClickException(err.format_message()))}{where}", err=True)
             ctx.exit(2)
+        except Stopped as err:
+            # SIGTERM or SIGHUP during a run: what was run is written; the status a process
+            # ended by that signal would have.
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"Error: {one_line(err)}", err=True)
+            ctx.exit(128 + err.signum)
         except self.user_errors as err:
             if ctx.obj and ctx.obj.get("debug"):
                 raise

@@ -4,7 +4,7 @@ Episode k of an evaluation with seed s is the episode of `Simulator(scenario, se
 bit for bit, so any episode can be run again alone (terl_rt.evaluation.play runs one).
 The episodes run in batches, each batch's together in one World with one policy call a
 step for all their deciding pursuers (terl_rt.evaluation.play.batch_steps). Where the
-batches run is a backend (terl_rt.evaluation.backends): this process, spawned processes
+batches run is a backend (terl_rt.evaluation.backends): this process, worker processes
 (`workers > 1`) or Ray tasks; results and logs are the same on each, in episode order,
 whatever the number of workers or the batch size (terl_rt.evaluation.runs).
 """
@@ -155,7 +155,7 @@ def evaluate_policy(
 
     max_steps overrides the scenario's step limit. backend: where the episodes run
     (terl_rt.evaluation.backends.open_backend; the caller closes it); without one they run
-    here, or in `workers` spawned processes when workers > 1, each batch running `envs`
+    here, or in `workers` worker processes when workers > 1, each batch running `envs`
     episodes at once (a backend has its own). threads: onnxruntime
     intra-op threads of a policy given as a path and of each worker's policy (workers
     default to 1). log_path: an MCAP file to write every step to (see

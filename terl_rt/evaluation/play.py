@@ -49,19 +49,17 @@ def check_finite_output(policy: OnnxPolicy, output: PolicyOutput, turn: Turn, wo
                         seeds: np.ndarray) -> None:
     """Raise PolicyOutputError naming the policy, the step, the episode's seed and its
     decision row when an output of the turn's rows is NaN or Inf."""
-    for name, values in (("q_values", output.q_values), ("target_weights", output.target_weights)):
-        if values is None or np.isfinite(values).all():
-            continue
-        row = int(np.argwhere(~np.isfinite(values))[0][0])
-        bad = values.reshape(len(values), -1)[row]
-        bad = bad[~np.isfinite(bad)][0]
-        env = int(turn.rows[row]) // world.scenario.pursuers
-        first_row = int(np.searchsorted(turn.rows, env * world.scenario.pursuers))
-        raise PolicyOutputError(
-            f"policy {policy.name} ({policy.path}) output a non-finite {name} ({bad}) at step "
-            f"{int(world.state.steps[env]) + 1} of the episode with seed {int(seeds[turn.episodes[env]])} "
-            f"(decision row {row - first_row}); the run is stopped"
-        )
+    problem = output.first_non_finite()
+    if problem is None:
+        return
+    name, row, bad = problem
+    env = int(turn.rows[row]) // world.scenario.pursuers
+    first_row = int(np.searchsorted(turn.rows, env * world.scenario.pursuers))
+    raise PolicyOutputError(
+        f"policy {policy.name} ({policy.path}) output a non-finite {name} ({bad}) at step "
+        f"{int(world.state.steps[env]) + 1} of the episode with seed {int(seeds[turn.episodes[env]])} "
+        f"(decision row {row - first_row}); the run is stopped"
+    )
 
 
 def batch_steps(

@@ -1,34 +1,47 @@
-"""The local backend: batches of episodes in this process (one worker) or in spawned processes.
+"""The local backend: batches of episodes in this process (one worker) or in worker processes (POSIX).
 
 The specs run in batches (terl_rt.evaluation.runs.batches), each batch's episodes together
-in one World. With `workers > 1` the batches are spread over processes (spawn), each
-reopening the policy files; they send each step to this process as they take it (one
-pipe, one message at a time), which delivers it to the run (terl_rt.evaluation.runs).
-Interrupted or failed, the workers stop within a step and what they sent is delivered.
-Workers end with their parent, even when it is killed (SIGKILL).
+in one World. With `workers > 1` the batches are spread over worker processes
+(terl_rt.evaluation.worker), each started in a session of its own, so that a terminal's
+Ctrl-C or hang-up reaches this process alone, however early it comes: this process
+decides and tells the workers. Each worker gets the policies as the bytes this process
+read (a file replaced during the run is never read again) and a batch at a time over its
+own socket, on which it sends each step as it takes it; this process delivers them to the
+run (terl_rt.evaluation.runs). Stopped (Ctrl-C, SIGTERM, SIGHUP) or failed, the workers
+stop within a step and what they sent is delivered. A worker that dies is noticed at once
+(its socket closes) and ends the run with a BackendError. No wait on a worker is without
+a bound: one that does not end when told is killed. Workers end with their parent, even
+when it is killed (SIGKILL).
 """
 
 from __future__ import annotations
 
-import ctypes
-import os
 import signal
-import sys
-import threading
+import subprocess
 import time
+from collections import deque
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
+from multiprocessing import Pipe
+from multiprocessing.connection import wait
+from typing import Any
 
+from terl_rt.evaluation import worker
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
-from terl_rt.evaluation.runs import Deliver, EpisodeSpec, batches, sigint_as_flag
-from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
-from terl_rt.sim.scenario import Scenario
+from terl_rt.evaluation.runs import (
+    BackendError,
+    Deliver,
+    EpisodeSpec,
+    Stopped,
+    batches,
+    raise_stop,
+    stop_signals_as_flag,
+)
+from terl_rt.policy.onnx_policy import OnnxPolicy
 
 
 class LocalBackend:
     """Runs batches of episodes on this machine: in this process when `workers` is 1, else
-    in that many spawned processes. threads: onnxruntime intra-op threads of each worker's
+    in that many worker processes. threads: onnxruntime intra-op threads of each worker's
     policies (default 1; with one worker the policies are used as they were opened).
     envs: episodes a batch runs at once (its World's environments; 1 runs them one by one)."""
 
@@ -62,69 +75,93 @@ class LocalBackend:
                         deliver)
 
 
-# --- worker processes ------------------------------------------------------------------
-
-_worker_policies: list[OnnxPolicy] = []
-_worker_stop = None
-_worker_channel = None
-"""(connection, lock): the pipe end every worker sends on, one message at a time."""
-
-_PR_SET_PDEATHSIG = 1
-_WATCHDOG_S = 0.5
-"""s: how often a worker checks that its parent is still alive."""
+DRAIN_S = 10.0
+"""s: how long a stopped run waits for its workers to send the steps they still take (one each)."""
+END_S = 5.0
+"""s: how long the workers have to end once their socket is closed, before they are killed."""
 
 
-def _die_with_parent(parent: int) -> None:
-    """End this worker when its parent process (pid `parent`, the evaluating process) dies,
-    even by SIGKILL: the kernel's parent-death signal where there is one (Linux), and a
-    watchdog thread everywhere. A parent that died while the worker started ends it at once."""
-    if sys.platform.startswith("linux"):
+class _Worker:
+    """One worker process and this process's end of its socket."""
+
+    def __init__(self, number: int):
+        self.number = number
+        self.connection, theirs = Pipe(duplex=True)
         try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-        except (OSError, AttributeError):  # no prctl: the watchdog alone
+            self.process = subprocess.Popen(worker.command(theirs.fileno()), pass_fds=(theirs.fileno(),),
+                                            start_new_session=True, stdin=subprocess.DEVNULL)
+        except BaseException:
+            self.connection.close()
+            raise
+        finally:
+            theirs.close()  # the worker's alone now: when it ends, the socket reads as closed
+        self.busy = False
+        """a task was sent and its "idle" (or "error") has not come back."""
+        self.heard = False
+        """a message has come from it (it has run)."""
+
+    def send_policies(self, models: tuple[tuple[str, bytes], ...], threads: int) -> None:
+        """The run's policies, (path, ONNX bytes) each, and onnxruntime's threads for them."""
+        self._send((models, threads))
+
+    def give(self, task: tuple | None) -> None:
+        """A batch to run (see terl_rt.evaluation.worker), or None: there is none left."""
+        self._send(task)
+        self.busy = task is not None
+
+    def tell_to_stop(self) -> None:
+        """Stop at the next step (any message does), then end; nothing when it has gone."""
+        try:
+            self.connection.send(None)
+        except OSError:
             pass
-    if os.getppid() != parent:  # the parent died before the signal was armed
-        os._exit(1)
 
-    def watch() -> None:
-        while True:
-            time.sleep(_WATCHDOG_S)
-            if os.getppid() != parent:
-                os._exit(1)
+    def _send(self, message) -> None:
+        try:
+            self.connection.send(message)
+        except OSError:
+            raise BackendError(self.death()) from None
 
-    threading.Thread(target=watch, name="terl-parent-watchdog", daemon=True).start()
+    def receive(self) -> tuple:
+        """The next message; a BackendError naming the worker when it has died."""
+        try:
+            message = self.connection.recv()
+        except (EOFError, OSError):
+            raise BackendError(self.death()) from None
+        self.heard = True
+        if message[0] in ("idle", "error"):
+            self.busy = False
+        return message
+
+    def death(self) -> str:
+        """What ended the run when the worker's socket closed: its pid and how it ended."""
+        try:
+            status = self.process.wait(timeout=END_S)
+        except subprocess.TimeoutExpired:
+            status = None
+        how = ("it did not end" if status is None else f"killed by {_signal_name(-status)}" if status < 0
+               else f"exit status {status}")
+        return (f"worker {self.number} (pid {self.process.pid}) ended unexpectedly ({how}; a kill, or too "
+                "little memory); the episodes it ran are not complete, the steps it sent are kept")
+
+    def end(self, deadline: float) -> None:
+        """Wait for the worker to end once its socket is closed; kill it when it has not ended
+        by `deadline` (time.monotonic()) or has never been heard from (it holds nothing sent)."""
+        try:
+            self.process.wait(timeout=max(0.0, deadline - time.monotonic()) if self.heard else 0.0)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            try:
+                self.process.wait(timeout=END_S)
+            except subprocess.TimeoutExpired:  # not reaped yet: subprocess reaps it later
+                pass
 
 
-def _init_worker(files: tuple[tuple[str, str], ...], threads: int | None, stop, channel, parent: int) -> None:
-    """files: (path, sha256) of every policy of the run, in order."""
-    global _worker_policies, _worker_stop, _worker_channel
-    # Ctrl-C reaches the whole process group: the parent handles it and sets `stop`,
-    # which the workers check every step (killing them could leave a result half sent).
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _die_with_parent(parent)
-    _worker_stop = stop
-    _worker_channel = channel
-    _worker_policies = [OnnxPolicy(path, threads=threads) for path, _ in files]
-    for policy, (path, sha256) in zip(_worker_policies, files):
-        if policy.sha256 != sha256:
-            raise ContractError(f"{path}: the policy file changed on disk during the evaluation")
-
-
-def _worker_batch(numbers: list[int], policy: int, scenario: Scenario, seeds: list[int], envs: int,
-                  record: bool) -> None:
-    """Run the batch of specs `numbers` (seeds `seeds`, `envs` at once), sending ("step", number, StepRecord)
-    for every step (when `record`) and ("end", number, metrics) to the parent as they happen."""
-    for kind, j, payload in batch_steps(_worker_policies[policy], scenario, seeds, record, envs, _worker_stop.is_set):
-        _send((kind, numbers[j], payload))
-
-
-def _send(message: tuple) -> None:
-    # Sent synchronously (no feeder thread): when the episode's future is done, every
-    # message it sent is in the pipe, and a worker never exits with a message unsent.
-    connection, lock = _worker_channel
-    with lock:
-        connection.send(message)
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 def _run_in_workers(
@@ -137,55 +174,73 @@ def _run_in_workers(
     record: bool,
     deliver: Deliver,
 ) -> None:
-    """Run the batches `parts` of the specs in `workers` spawned processes that stream their
-    messages to this one."""
-    context = get_context("spawn")
-    stop = context.Event()
-    messages, sending = context.Pipe(duplex=False)
-    files = tuple((str(policy.path), policy.sha256) for policy in policies)
-    init = (files, 1 if threads is None else threads, stop, (sending, context.Lock()), os.getpid())
-    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker, initargs=init)
-    futures = []
+    """Run the batches `parts` of the specs in `workers` worker processes, a batch at a time
+    each, in the order of `parts`, delivering their messages as they arrive."""
+    models = tuple((str(policy.path), policy.model) for policy in policies)
+    todo = deque(
+        (batch, specs[batch[0]].policy, specs[batch[0]].scenario, [specs[number].seed for number in batch], envs,
+         record)
+        for batch in parts
+    )
+    started: list[_Worker] = []
     ended = 0
-    with sigint_as_flag() as interrupted:
+    # Installed before the first worker starts: a signal from now on only sets the flag.
+    with stop_signals_as_flag() as received:
         try:
-            futures = [
-                pool.submit(_worker_batch, batch, specs[batch[0]].policy, specs[batch[0]].scenario,
-                            [specs[number].seed for number in batch], envs, record)
-                for batch in parts
-            ]
+            for number in range(workers):
+                started.append(_Worker(number + 1))
+            for one in started:
+                raise_stop(received)
+                one.send_policies(models, 1 if threads is None else threads)
+                one.give(todo.popleft())
+            by_connection: dict[Any, _Worker] = {one.connection: one for one in started}
             while ended < len(specs):
-                if interrupted:
-                    raise KeyboardInterrupt
-                if messages.poll(0.1):
-                    kind, number, payload = messages.recv()
-                    ended += kind == "end"
-                    deliver(kind, number, payload)
-                else:
-                    for future in futures:
-                        if future.done() and future.exception() is not None:
-                            raise future.exception()
-            pool.shutdown()
-        except BaseException:
-            # Interrupted or failed: the workers stop within a step; what they sent is delivered.
-            stop.set()
-            for future in futures:
-                future.cancel()
-            try:
-                _drain(messages, futures, deliver)
-            finally:
-                pool.shutdown(wait=True, cancel_futures=True)
-            raise
+                raise_stop(received)
+                if not by_connection:  # never so: each batch ends its episodes; but no wait without end
+                    raise BackendError(f"the workers ended with {len(specs) - ended} episodes not run")
+                for connection in wait(list(by_connection), 0.1):
+                    one = by_connection[connection]
+                    kind, number, payload = one.receive()
+                    if kind == "error":
+                        raise payload
+                    if kind == "idle":
+                        one.give(todo.popleft() if todo else None)
+                        if not one.busy:  # it ends now: its socket closing is no death
+                            del by_connection[connection]
+                    else:
+                        ended += kind == "end"
+                        deliver(kind, number, payload)
+        except BaseException as error:
+            # Stopped or failed: the workers stop within a step; what they send is delivered.
+            for one in started:
+                one.tell_to_stop()
+            _drain([one for one in started if one.busy and one.heard], deliver)
+            if isinstance(error, Stopped) or not received:
+                raise
+            # A stop asked for wins over what followed it (a worker the same Ctrl-C reached
+            # in the instant before it left the terminal's process group).
+            raise Stopped(received[0]) from None
         finally:
-            messages.close()
-            sending.close()
+            for one in started:
+                one.connection.close()  # each ends at once (between batches) or within a step
+            deadline = time.monotonic() + END_S
+            for one in started:
+                one.end(deadline)
 
 
-def _drain(messages, futures, deliver: Deliver, limit_s: float = 10.0) -> None:
-    """Deliver what the workers still send until each has stopped (at most `limit_s`)."""
-    deadline = time.monotonic() + limit_s
-    while time.monotonic() < deadline:
-        if messages.poll(0.05):
-            deliver(*messages.recv())
-        elif all(future.done() for future in futures):
-            return
+def _drain(busy: list[_Worker], deliver: Deliver) -> None:
+    """Deliver what the `busy` workers still send until each has stopped (at most DRAIN_S)."""
+    deadline = time.monotonic() + DRAIN_S
+    waiting: dict[Any, _Worker] = {one.connection: one for one in busy}
+    while waiting and time.monotonic() < deadline:
+        for connection in wait(list(waiting), min(0.1, max(0.0, deadline - time.monotonic()))):
+            one = waiting[connection]
+            try:
+                kind, number, payload = one.receive()
+            except BackendError:  # it died meanwhile: the error that stopped the run goes on
+                del waiting[connection]
+                continue
+            if kind in ("step", "end"):
+                deliver(kind, number, payload)
+            else:
+                del waiting[connection]

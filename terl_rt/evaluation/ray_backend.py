@@ -34,7 +34,7 @@ import ray
 from ray.exceptions import RayError, RayTaskError
 
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
-from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, batches, sigint_as_flag
+from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, batches, raise_stop, stop_signals_as_flag
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
@@ -131,12 +131,13 @@ class RayBackend:
                 seeds = [specs[number].seed for number in batch]
                 streams[self._task.remote(refs[spec.policy], spec.scenario, seeds, record, self.envs)] = [batch, len(batch)]
 
-        with sigint_as_flag() as interrupted:
+        # Installed after ray.init (in __init__), so that Ctrl-C, SIGTERM and SIGHUP reach
+        # this flag rather than Ray's own handlers.
+        with stop_signals_as_flag() as interrupted:
             try:
                 submit()
                 while streams:
-                    if interrupted:
-                        raise KeyboardInterrupt
+                    raise_stop(interrupted)
                     ready, _ = ray.wait(list(streams), num_returns=1, timeout=_WAIT_S)
                     for stream in ready:
                         _take(stream, streams, specs, deliver)

@@ -2,7 +2,7 @@
 come back in order.
 
 A backend runs the specs in batches (`batches`), the episodes of a batch together in one
-World (terl_rt.evaluation.play.batch_steps), wherever it runs them (this process, spawned
+World (terl_rt.evaluation.play.batch_steps), wherever it runs them (this process, worker
 processes, Ray tasks), and hands each message to the run as it arrives: ("step", i, StepRecord) for every
 step of spec i when the run is logged, then ("end", i, EpisodeMetrics). `run_episodes`
 puts them in spec order: a log keeps each episode's records together, so the lowest
@@ -110,20 +110,46 @@ def run_episodes(
         raise
 
 
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+"""What stops a run: Ctrl-C, `kill PID` and a closed terminal (no SIGHUP on Windows)."""
+
+
+class Stopped(KeyboardInterrupt):
+    """A run with workers (or on Ray) was stopped by SIGINT, SIGTERM or SIGHUP, and what had
+    arrived was written first. The terl-rt group prints it as one line and exits with
+    128 + `signum`, as a process ended by that signal would."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"stopped by {signal.Signals(signum).name}; a --log keeps every step run so far")
+        self.signum = signum
+
+
+def raise_stop(received: Sequence[int]) -> None:
+    """Raise Stopped for the first signal in `received` (from `stop_signals_as_flag`);
+    nothing when it is empty."""
+    if received:
+        raise Stopped(received[0])
+
+
 @contextmanager
-def sigint_as_flag() -> Iterator[list[int]]:
-    """Inside the block Ctrl-C (SIGINT) only appends to the list yielded, which a backend
-    checks between messages: a message taken off its queue is always delivered. Outside
-    the main thread the list stays empty and SIGINT is left alone."""
+def stop_signals_as_flag() -> Iterator[list[int]]:
+    """Inside the block Ctrl-C, SIGTERM and SIGHUP (STOP_SIGNALS) only append their number to
+    the list yielded, which a backend checks between messages (`raise_stop`): a message
+    taken off its queue is always delivered. A signal ignored when the block starts stays
+    ignored (`nohup` ignores SIGHUP; a shell ignores SIGINT in its background jobs). Outside
+    the main thread the list stays empty and the signals are left alone."""
     received: list[int] = []
     if threading.current_thread() is not threading.main_thread():
         yield received
         return
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
+                for signum in STOP_SIGNALS if signal.getsignal(signum) is not signal.SIG_IGN}
     try:
         yield received
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            if handler is not None:  # None: a handler not installed from Python, which cannot be put back
+                signal.signal(signum, handler)
 
 
 class InOrderLog:

@@ -242,12 +242,13 @@ def decide(
         ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params, encircled
     )
     output = policy.evaluate(observation)
-    for name, values in (("q_values", output.q_values), ("target_weights", output.target_weights)):
-        if values is not None and not np.isfinite(values).all():
-            raise ContractError(
-                f"policy {getattr(policy, 'name', policy)} output a non-finite {name} "
-                f"({values[~np.isfinite(values)][0]}); no action can be chosen from it"
-            )
+    problem = output.first_non_finite()
+    if problem is not None:
+        name, _, bad = problem
+        raise ContractError(
+            f"policy {getattr(policy, 'name', policy)} output a non-finite {name} ({bad}); "
+            "no action can be chosen from it"
+        )
     action = int(output.actions[0])
     acceleration, yaw_rate = PURSUER_ACTIONS[action]
     return Decision(

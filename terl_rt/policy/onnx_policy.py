@@ -261,6 +261,16 @@ class PolicyOutput:
     actions: np.ndarray
     """[...] int64: argmax of q_values (the first one on ties)."""
 
+    def first_non_finite(self) -> tuple[str, int, float] | None:
+        """(output name, row, value) of the first NaN or Inf in q_values, then in target_weights
+        (row: its index along the first axis), or None when every value is finite."""
+        for name, values in (("q_values", self.q_values), ("target_weights", self.target_weights)):
+            if values is None or np.isfinite(values).all():
+                continue
+            where = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
+            return name, where[0], float(values[where])
+        return None
+
 
 class PolicyRunError(ContractError):
     """A policy that loaded failed inside onnxruntime while it ran (a Reshape that cannot
