@@ -125,6 +125,8 @@ class EpisodeLogWriter:
             if key not in policy_info:
                 raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.policy.onnx_policy.policy_info(policy)")
         self.path = Path(path)
+        self.policy_info = dict(policy_info)
+        """the policy_info the log was opened with."""
         self.staging_path: Path | None = temporary_beside(self.path) if staged else None
         self._replace = replace
         self.steps_written = 0
