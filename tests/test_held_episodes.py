@@ -62,3 +62,13 @@ def test_sigkill_of_a_batched_logged_run_keeps_the_steps_of_every_episode(policy
     replayed = invoke("replay", log)
     assert replayed.exit_code == 0
     assert "killed with 3 more episode(s) held beside the log" in replayed.stderr
+
+
+def test_side_logs_of_an_earlier_killed_run_go_when_the_log_is_replaced(policy, tmp_path):
+    log = tmp_path / "run.mcap"
+    held_folder(log).mkdir()
+    (held_folder(log) / "episode-000001.mcap").write_bytes(b"from a killed run")
+    result = invoke("eval", "--policy", policy, "--scenario", "small-11", "--episodes", "2", "--max-steps", "10",
+                    "--log", log)
+    assert result.exit_code == 0, result.output
+    assert not held_folder(log).exists()

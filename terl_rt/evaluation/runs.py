@@ -229,6 +229,7 @@ class InOrderLog:
     def _write(self, record: StepRecord) -> None:
         if self.log is None:
             return
+        self.held.clear_earlier()
         if not self.begun:
             self._begin()
         self.log.write_step(record)
