@@ -14,6 +14,7 @@ import torch
 
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from training import export
+from training.__main__ import main
 from training.export import ParityError, check_parity, example_inputs, export_onnx, read_metadata
 from training.networks import build_network, network_classes
 
@@ -172,3 +173,11 @@ def test_shipped_policy_of_the_older_graph_reexports_with_the_same_outputs(tmp_p
                 for path in (source, target))
     np.testing.assert_allclose(new[0], old[0], rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(new[1], old[1], rtol=1e-5, atol=1e-6)
+
+
+def test_export_command_reexports_an_onnx_policy_and_refuses_a_missing_one(exported, tmp_path, capsys):
+    _, source = exported["terl"]
+    assert main(["export", str(source), "-o", str(tmp_path / "again.onnx")]) == 0
+    assert read_metadata(tmp_path / "again.onnx")[export.META_REEXPORTED_FROM]
+    assert main(["export", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "out.onnx")]) == 2
+    assert "no policy file at" in capsys.readouterr().err
