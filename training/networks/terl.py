@@ -42,7 +42,8 @@ def attention_bias(mask: torch.Tensor) -> torch.Tensor:
     """
     length = mask.shape[1]
     lowest = torch.finfo(torch.float32).min
-    bias = torch.where(mask, torch.zeros((), dtype=torch.float32), torch.full((), lowest))
+    zero = torch.zeros((), dtype=torch.float32, device=mask.device)
+    bias = torch.where(mask, zero, torch.full_like(zero, lowest))
     return bias[:, None, None, :].expand(-1, 1, length, -1)
 
 
