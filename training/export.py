@@ -1,15 +1,17 @@
 """Export a trained Q-network as one ONNX policy (policy.md section 3, contract version 1).
 
-The graph is traced in eval mode with the legacy TorchScript exporter (opset 17):
+The graph is traced in eval mode with the legacy TorchScript exporter (opset 23):
 inputs ego/teammates/evaders/obstacles float32 and mask bool with dynamic B, P, E
 and O; outputs q_values [B, 9] (mean of the quantiles at the fixed fractions
 (k + 0.5) / 32, folded into the graph) and, for models with target selection,
 target_weights [B, E]. `export_onnx` checks the file with onnx.checker and then
-compares it with the torch model by `check_parity`.
+compares it with the torch model by `check_parity`. `reexport_onnx` writes an exported
+policy again from the weights inside it, with this exporter's graph.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import warnings
 from collections.abc import Iterator, Mapping
@@ -38,9 +40,13 @@ from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 from terl_rt.sim.simulator import Simulator
 from training.networks.encoders import QNetwork
+from training.onnx_weights import network_from_onnx
 
-OPSET = 17
-"""ONNX opset the policies are written with."""
+OPSET = 23
+"""ONNX opset the policies are written with: 23 for the `Attention` op the transformer
+layers export as (training/networks/terl.py), which onnxruntime runs on CPU from 1.23 on."""
+META_REEXPORTED_FROM = "terl.reexported_from"
+"""Metadata key of a re-exported policy: the sha256 of the file its weights came from."""
 PARITY_TOLERANCE = 1e-4
 """Largest torch-onnxruntime difference `check_parity` accepts, relative to the output's
 largest magnitude when that is above 1 (float32 round-off grows with the values: a
@@ -155,6 +161,9 @@ def _trace_to_onnx(model: QNetwork, path: Path, opset: int) -> None:
         # The legacy exporter announces its own deprecation; its output is what we check.
         warnings.filterwarnings("ignore", message=".*legacy TorchScript", category=DeprecationWarning)
         warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"torch\.onnx")
+        # It also says opset 23 is past the 20 it knows: the ops whose schemas changed from 21
+        # to 23 only gained element types (int4, float8); onnx.checker and check_parity verify.
+        warnings.filterwarnings("ignore", message="Exporting to ONNX opset version 23")
         torch.onnx.export(
             _ContractGraph(model),
             args,
@@ -213,6 +222,25 @@ def export_onnx(
     finally:
         model.train(was_training)
     return path
+
+
+def reexport_onnx(source: str | Path, path: str | Path) -> Path:
+    """Write the policy at `source` again at `path`, with this exporter's graph, and return the path.
+
+    The network is rebuilt from the weights in the source graph (training.onnx_weights) and
+    checked to compute what the source does (`check_parity` against the source file) before
+    `export_onnx` writes and checks the new file; the source's metadata is kept, with
+    META_REEXPORTED_FROM added.
+
+    Raises:
+        WeightsNotFound: the source graph lacks a parameter of its network.
+        ParityError: the rebuilt network differs from the source file or from the new one.
+    """
+    source = Path(source)
+    model, metadata = network_from_onnx(source)
+    check_parity(model, source)
+    metadata[META_REEXPORTED_FROM] = hashlib.sha256(source.read_bytes()).hexdigest()
+    return export_onnx(model, path, metadata)
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:

@@ -11,16 +11,13 @@ from terl_rt.cli.options import (
     MAX_WORKERS,
     BadInput,
     IntRange,
-    episodes_option,
+    evaluation_run_options,
     json_option,
-    max_steps_option,
     open_policy,
     policy_option,
     resolve_scenarios,
     scenario_option,
-    scenarios_option,
     seed_option,
-    suite_option,
     threads_option,
 )
 from terl_rt.evaluation.backends import RayMissing
@@ -155,12 +152,7 @@ def policy_command(policy_path, scenario, batches, calls: int, seed: int, thread
 
 
 @bench.command("eval")
-@policy_option
-@scenarios_option
-@suite_option
-@episodes_option
-@seed_option
-@max_steps_option
+@evaluation_run_options
 @click.option(
     "--workers", type=IntRange(min=1, max=MAX_WORKERS), default=2, show_default=True,
     help="Local worker processes, each running batches.",
@@ -205,12 +197,7 @@ def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, 
 
 
 @bench.command("backends")
-@policy_option
-@scenarios_option
-@suite_option
-@episodes_option
-@seed_option
-@max_steps_option
+@evaluation_run_options
 @click.option(
     "--workers", "worker_counts", type=IntRange(min=1, max=MAX_WORKERS), multiple=True, default=(1, 2),
     show_default=True, help="Worker counts to time (repeat for several).",

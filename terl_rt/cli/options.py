@@ -264,3 +264,13 @@ episode_option = click.option(
     "--episode", type=IntRange(min=0), default=None,
     help="Episode of the log, by its position in the file (0-based).",
 )
+
+
+def evaluation_run_options(command):
+    """The options that say what a timed evaluation runs, stacked in this order: --policy,
+    --scenario (repeatable), --suite, --episodes, --seed, --max-steps (`bench eval`, `bench backends`)."""
+    for option in reversed(
+        (policy_option, scenarios_option, suite_option, episodes_option, seed_option, max_steps_option)
+    ):
+        command = option(command)
+    return command

@@ -7,6 +7,7 @@ import json
 import click
 
 from terl_rt.cli.options import episode_option, json_option, policy_json
+from terl_rt.logs.held import held_logs
 from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 from terl_rt.logs.resimulate import verify
 
@@ -39,6 +40,15 @@ def _episode_line(entry: LoggedEpisode) -> str:
     return f"{entry.number:>4}  {entry.scenario.name:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}"
 
 
+def _held_note(log: str) -> str | None:
+    """The note on the side logs a killed batched run left beside `log` (terl_rt.logs.held), if any."""
+    held = held_logs(log)
+    if not held:
+        return None
+    return (f"the run was killed with {len(held)} more episode(s) held beside the log, each a log of its own: "
+            f"{held[0].parent}/ (terl-rt replay {held[0]})")
+
+
 @click.command()
 @click.argument("log", type=str)
 @episode_option
@@ -47,7 +57,9 @@ def _episode_line(entry: LoggedEpisode) -> str:
 def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
     """List the episodes of an MCAP episode log (from `terl-rt eval --log`), show the
     events of one (--episode K), or verify episodes by re-simulating them (--verify:
-    every episode, or K). Exit status 1 when a verification finds a mismatch.
+    every episode, or K). Exit status 1 when a verification finds a mismatch. A batched
+    run that was killed leaves the episodes it held back for their turn in LOG.held/,
+    one log each; the note under the list names them.
 
     \b
     Examples:
@@ -85,6 +97,7 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
             "log": log, "policy": policy_json(reader.policy),
             "truncated": reader.truncated, "problem": reader.problem,
             "episodes": [_episode_dict(entry) for entry in entries],
+            "held_logs": [str(path) for path in held_logs(log)],
         }
         if episode is not None:
             out["events"] = events
@@ -101,3 +114,5 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
             click.echo(f"  step {event['step']:>5}  {event['type']:<12} {details}")
     if reader.problem:
         click.echo(f"note: {reader.problem}", err=True)
+    if _held_note(log):
+        click.echo(f"note: {_held_note(log)}", err=True)

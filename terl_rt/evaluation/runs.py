@@ -7,9 +7,11 @@ processes, Ray tasks), and hands each message to the run as it arrives: ("step",
 step of spec i when the run is logged, then ("end", i, EpisodeMetrics). `run_episodes`
 puts them in spec order: a log keeps each episode's records together, so the lowest
 unfinished episode is written as its steps arrive and later episodes' steps wait in
-memory until their turn; episodes are reported in spec order. Interrupted or failed, the
-run writes what waits before the error goes on (the episodes that did not end stay
-unended in the log). Every episode is the same, bit for bit, in any batch, so the
+memory until their turn, each also written step by step to a side log of its own beside
+the log (terl_rt.logs.held), deleted once its steps are in the log: a killed run keeps
+every step taken. Episodes are reported in spec order. Interrupted or failed, the run
+writes what waits before the error goes on (the episodes that did not end stay unended
+in the log). Every episode is the same, bit for bit, in any batch, so the
 results and the log never depend on the backend or on how many workers it has.
 """
 
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from terl_rt.logs.format import StepRecord
+from terl_rt.logs.held import HeldEpisodes
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -108,6 +111,8 @@ def run_episodes(
     except BaseException:
         order.flush_waiting()
         raise
+    finally:
+        order.close()
 
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
@@ -156,8 +161,9 @@ class InOrderLog:
     """Writes the episodes that a backend streams, in spec order, and reports them in that order.
 
     Only one episode is written as its steps arrive (the lowest that has not ended); the
-    steps of later episodes wait in memory until it ends. An interrupted run writes what
-    waits (`flush_waiting`) before it closes the log.
+    steps of later episodes wait in memory until it ends, and in their side logs
+    (`HeldEpisodes`) until they are in the log. An interrupted run writes what waits
+    (`flush_waiting`) before it closes the log.
     """
 
     def __init__(self, specs: Sequence[EpisodeSpec], log: EpisodeLogWriter | None, finished: Finished):
@@ -167,21 +173,26 @@ class InOrderLog:
         self.begun = False
         self.waiting: dict[int, list[StepRecord]] = {}
         self.ended: dict[int, EpisodeMetrics] = {}
+        self.held = None if log is None else HeldEpisodes(log.path, log.policy_info)
 
     def receive(self, kind: str, number: int, payload) -> None:
         if number != self.current:
             if kind == "step":
                 self.waiting.setdefault(number, []).append(payload)
+                if self.held is not None:
+                    spec = self.specs[number]
+                    self.held.write_step(number, spec.scenario, spec.seed, spec.index, payload)
             else:
                 self.ended[number] = payload
+                if self.held is not None:
+                    self.held.end_episode(number, payload)
             return
         if kind == "step":
             self._write(payload)
             return
         self._end(payload)
         while self.current in self.waiting or self.current in self.ended:
-            for record in self.waiting.pop(self.current, []):
-                self._write(record)
+            self._write_waiting(self.current)
             if self.current not in self.ended:
                 break
             self._end(self.ended.pop(self.current))
@@ -194,10 +205,21 @@ class InOrderLog:
             if self.begun:
                 self.log.abandon_episode()
             self.current, self.begun = number, False
-            for record in self.waiting.pop(number, []):
-                self._write(record)
+            self._write_waiting(number)
             if number in self.ended:
                 self._end(self.ended.pop(number), report=False)
+
+    def close(self) -> None:
+        """Close the side logs; those of episodes that never reached the log stay on disk."""
+        if self.held is not None:
+            self.held.close()
+
+    def _write_waiting(self, number: int) -> None:
+        """Write the waiting steps of episode `number` (the current one) and drop its side log."""
+        for record in self.waiting.pop(number, []):
+            self._write(record)
+        if self.held is not None:
+            self.held.release(number)
 
     def _begin(self) -> None:
         spec = self.specs[self.current]
@@ -207,6 +229,7 @@ class InOrderLog:
     def _write(self, record: StepRecord) -> None:
         if self.log is None:
             return
+        self.held.clear_earlier()
         if not self.begun:
             self._begin()
         self.log.write_step(record)

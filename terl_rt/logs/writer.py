@@ -116,17 +116,23 @@ class EpisodeLogWriter:
     temporary file is removed).
     replace: replace a file at `path`; without, a file there (even one another run
     published meanwhile) raises FileExistsError naming `path`.
+    scenes: write /world, Foxglove's 3-D scene of each step (most of a step's writing
+    time); without, the log holds every other topic and reads, replays and verifies alike.
     """
 
     def __init__(
         self, path: str | os.PathLike, policy_info: Mapping[str, Any], staged: bool = False, replace: bool = True,
+        scenes: bool = True,
     ):
         for key in ("name", "sha256"):
             if key not in policy_info:
                 raise ValueError(f"policy_info lacks {key!r}; build it with terl_rt.policy.onnx_policy.policy_info(policy)")
         self.path = Path(path)
+        self.policy_info = dict(policy_info)
+        """the policy_info the log was opened with."""
         self.staging_path: Path | None = temporary_beside(self.path) if staged else None
         self._replace = replace
+        self._scenes = scenes
         self.steps_written = 0
         """steps written so far, all episodes."""
         self._file = NamingFile(open(self.staging_path or self.path, "wb" if replace or staged else "xb"), self.path)
@@ -200,18 +206,20 @@ class EpisodeLogWriter:
         episode.last_ns = time_ns
         head = {"episode": episode.number, "step": record.step}
         state = record.state
-        params = episode.scenario.params
-        status = (
-            f"{episode.scenario.name}  episode {episode.number}  step {record.step}  "
-            f"t={record.step * episode.step_ns / 1e9:g} s  "
-            f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
-            f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"
-        )
-        scene = scene_update(
-            state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
-            previous_ids=None if record.step == 0 else episode.scene_ids,
-        )
-        messages = [(TOPIC_WORLD, scene)]
+        messages = []
+        if self._scenes:
+            params = episode.scenario.params
+            status = (
+                f"{episode.scenario.name}  episode {episode.number}  step {record.step}  "
+                f"t={record.step * episode.step_ns / 1e9:g} s  "
+                f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
+                f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"
+            )
+            scene = scene_update(
+                state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
+                previous_ids=None if record.step == 0 else episode.scene_ids,
+            )
+            messages.append((TOPIC_WORLD, scene))
         info = record.info
         if info is not None:
             messages.append((TOPIC_ACTIONS, {
@@ -251,7 +259,8 @@ class EpisodeLogWriter:
                 self._sequence[topic] += 1
             self._mcap.flush()
             self._step_pending = False
-        episode.scene_ids = entity_ids(scene)
+        if self._scenes:
+            episode.scene_ids = entity_ids(scene)
         self.steps_written += 1
         if self.staging_path is not None:
             publish(self.staging_path, self.path, self._replace)

@@ -1,7 +1,9 @@
 """The matrix-product work of a policy: FLOPs a decision row, counted from a run of its graph.
 
 Every MatMul and Gemm of the ONNX graph is counted at 2 x M x K x N multiply-adds (times
-its broadcast batch dimensions) with the shapes it meets on real observations: the
+its broadcast batch dimensions), and every Attention op (opset 23, 3-D query, key and value
+[B, L, H], H = heads x head size) at its two products, 2 x 2 x B x L x S x H for S keys,
+with the shapes it meets on real observations: the
 graph is run once with each product's operands as extra outputs. What a policy costs
 depends on the observation's slots (P, E, O tokens), so the count is per scenario.
 Needs the `onnx` package (the `optimize` extra) to add those outputs.
@@ -37,12 +39,12 @@ def _onnx():
 def flops_per_row(policy: OnnxPolicy, observation: Observation) -> float:
     """FLOPs of the policy's matrix products for one row of `observation` (leading shape
     [R], rows of one scenario): the graph run once on them, each MatMul / Gemm counted at
-    2 x M x K x N, summed and divided by R. Work a call does once, whatever its rows (the
+    2 x M x K x N and each Attention at its two products, summed and divided by R. Work a call does once, whatever its rows (the
     shipped graph's quantile embedding, about 0.26 MFLOP), is shared by its R rows."""
     onnx = _onnx()
     model = onnx.load_from_string(policy.model)
     weights = {tensor.name: tuple(tensor.dims) for tensor in model.graph.initializer}
-    products = [node for node in model.graph.node if node.op_type in ("MatMul", "Gemm")]
+    products = [node for node in model.graph.node if node.op_type in ("MatMul", "Gemm", "Attention")]
     shown = {output.name for output in model.graph.output}
     operands = [name for node in products for name in node.input[:2] if name not in weights and name not in shown]
     for name in dict.fromkeys(operands):
@@ -61,6 +63,8 @@ def flops_per_row(policy: OnnxPolicy, observation: Observation) -> float:
             m, k = a[::-1] if attributes.get("transA") else a
             n = b[0] if attributes.get("transB") else b[1]
             total += 2.0 * m * k * n
+        elif node.op_type == "Attention":  # query [B, L, H] times keys [B, S, H], then weights times values
+            total += 4.0 * a[0] * a[1] * b[1] * a[2]
         else:
             batch = np.broadcast_shapes(a[:-2], b[:-2]) if len(a) > 2 or len(b) > 2 else ()
             total += 2.0 * math.prod(batch) * (a[-2] if len(a) > 1 else 1) * a[-1] * b[-1]

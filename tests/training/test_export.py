@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -12,6 +14,7 @@ import torch
 
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from training import export
+from training.__main__ import main
 from training.export import ParityError, check_parity, example_inputs, export_onnx, read_metadata
 from training.networks import build_network, network_classes
 
@@ -145,3 +148,36 @@ def test_export_that_fails_parity_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(ParityError, match="forced"):
         export_onnx(build_network("iqn", hidden=16, layers=0, heads=0), tmp_path / "policy.onnx", {})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_transformer_layers_export_as_one_attention_op_each(exported):
+    _, path = exported["terl"]
+    operators = [node.op_type for node in onnx.load(str(path)).graph.node]
+    assert operators.count("Attention") == 2 and "Transpose" not in operators
+
+
+@pytest.mark.parametrize("name", ["terl", "iqn"])
+def test_reexported_policy_computes_what_its_source_does(exported, tmp_path, name):
+    model, source = exported[name]
+    target = export.reexport_onnx(source, tmp_path / "again.onnx")
+    assert check_parity(model, target) <= 1e-4
+    assert read_metadata(target)[export.META_REEXPORTED_FROM] == hashlib.sha256(source.read_bytes()).hexdigest()
+
+
+def test_shipped_policy_of_the_older_graph_reexports_with_the_same_outputs(tmp_path):
+    # exported/comparison/terl.onnx was written by the opset-17 exporter (MatMul/Softmax attention).
+    source = Path(__file__).parents[2] / "exported" / "comparison" / "terl.onnx"
+    target = export.reexport_onnx(source, tmp_path / "terl.onnx")
+    feed = {key: value.numpy() for key, value in example_inputs(6, 5, 8, 5, partial_mask=True).items()}
+    old, new = (ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, feed)
+                for path in (source, target))
+    np.testing.assert_allclose(new[0], old[0], rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(new[1], old[1], rtol=1e-5, atol=1e-6)
+
+
+def test_export_command_reexports_an_onnx_policy_and_refuses_a_missing_one(exported, tmp_path, capsys):
+    _, source = exported["terl"]
+    assert main(["export", str(source), "-o", str(tmp_path / "again.onnx")]) == 0
+    assert read_metadata(tmp_path / "again.onnx")[export.META_REEXPORTED_FROM]
+    assert main(["export", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "out.onnx")]) == 2
+    assert "no policy file at" in capsys.readouterr().err

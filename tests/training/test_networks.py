@@ -17,7 +17,7 @@ from training.networks.encoders import (
     masked_mean,
     masked_softmax,
 )
-from training.networks.terl import MaskedSelfAttention
+from training.networks.terl import MaskedSelfAttention, attention_bias
 
 ALL_MODELS = sorted(network_classes())
 TARGET_SELECTION_MODELS = ["terl", "terl-no-re"]
@@ -285,4 +285,14 @@ def test_self_attention_matches_torch_multihead_attention():
         mask = torch.rand(3, 7) < 0.5
         mask[:, 0] = True
         expected, _ = reference(tokens, tokens, tokens, key_padding_mask=~mask, need_weights=False)
-        torch.testing.assert_close(attention(tokens, mask), expected, atol=1e-5, rtol=1e-5)
+        attended = attention(tokens.flatten(0, 1), attention_bias(mask)).reshape(3, 7, 16)
+        torch.testing.assert_close(attended, expected, atol=1e-5, rtol=1e-5)
+
+
+def test_attention_bias_gives_padded_keys_zero_weight_and_valid_keys_their_softmax():
+    scores = torch.tensor([[[[0.0, math.log(3.0), 100.0]] * 3]])
+    mask = torch.tensor([[True, True, False]])
+    # exp(0) : exp(ln 3) = 1 : 3 -> 0.25, 0.75 on every query; the padded 100 gets exactly 0.
+    weights = torch.softmax(scores + attention_bias(mask), dim=-1)
+    torch.testing.assert_close(weights, torch.tensor([[[[0.25, 0.75, 0.0]] * 3]]))
+    assert torch.equal(weights[..., 2], torch.zeros(1, 1, 3))
