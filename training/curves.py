@@ -67,13 +67,7 @@ def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path
         axis.set_ylim(-0.05, 1.05)
         axis.grid(alpha=0.3)
     top.legend(loc="upper left")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    out_path = Path(out_path)
-    fig.savefig(out_path, dpi=110)
-    plt.close(fig)
-    return out_path
+    return save_figure(fig, out_path, title)
 
 
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
@@ -129,10 +123,15 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     for stage in stages:
         top.annotate(stage["stage"].replace("curriculum-", "stage "), (stage["env_step"], 1.0),
                      fontsize=7, rotation=90, va="top", ha="right", color="grey")
+    return save_figure(fig, out_path, title)
+
+
+def save_figure(fig: Any, out_path: str | Path, title: str = "") -> Path:
+    """Title `fig` (when given), write it as a PNG at `out_path`, close it; returns the path."""
     if title:
         fig.suptitle(title)
     fig.tight_layout()
     out_path = Path(out_path)
     fig.savefig(out_path, dpi=110)
-    plt.close(fig)
+    _pyplot().close(fig)
     return out_path
