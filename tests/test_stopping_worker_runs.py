@@ -14,11 +14,10 @@ from pathlib import Path
 
 import pytest
 from onnx_models import write_test_policy
+from kept_logs import assert_log_keeps_complete_steps
 from processes import children, cmdline, wait_for_log
 
 from terl_rt.evaluation.episodes import evaluate_policy as evaluate
-from terl_rt.logs.reader import EpisodeLogReader
-from terl_rt.logs.resimulate import verify
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
@@ -82,14 +81,6 @@ def _error_line(stderr: str) -> str:
     return errors[0]
 
 
-def _assert_log_keeps_complete_steps(log: Path, episodes_at_least: int) -> None:
-    reader = EpisodeLogReader(log)
-    assert not reader.truncated, reader.problem
-    assert len(reader.episodes) >= episodes_at_least
-    assert all(e.steps > 0 for e in reader.episodes)
-    assert all(verify(log, e.number).ok for e in reader.episodes)
-
-
 def test_ctrl_c_while_the_workers_start_ends_in_one_line_eight_times_in_eight(policy_path, tmp_path):
     """Ctrl-C reaches the process group at eight moments of the workers' start, from their
     first instruction to their first steps: never a worker traceback, never a hang."""
@@ -104,7 +95,7 @@ def test_ctrl_c_while_the_workers_start_ends_in_one_line_eight_times_in_eight(po
         assert _error_line(stderr).startswith("Error: stopped by SIGINT"), attempt
         assert not any(cmdline(pid) for pid in workers), f"attempt {attempt}: a worker outlived the run"
         if log.exists():
-            _assert_log_keeps_complete_steps(log, episodes_at_least=0)
+            assert_log_keeps_complete_steps(log, episodes_at_least=0)
 
 
 @pytest.mark.parametrize("signum, to_group", [(signal.SIGTERM, False), (signal.SIGHUP, True)],
@@ -120,7 +111,7 @@ def test_sigterm_or_sighup_of_a_worker_run_writes_the_held_steps_and_exits_128_p
     assert _error_line(stderr).startswith("Error: stopped by " + signal.Signals(signum).name)
     # Episode 0 is written live; the episodes running beside it (2 and 4 in the first
     # worker's batch, 1, 3, 5 in the second's) were held in memory and are written too.
-    _assert_log_keeps_complete_steps(log, episodes_at_least=2)
+    assert_log_keeps_complete_steps(log, episodes_at_least=2)
 
 
 def test_a_worker_killed_mid_run_ends_the_run_in_one_line_keeping_what_was_run(policy_path, tmp_path):
@@ -133,7 +124,7 @@ def test_a_worker_killed_mid_run_ends_the_run_in_one_line_keeping_what_was_run(p
     assert status == 2, stderr
     line = _error_line(stderr)
     assert f"pid {workers[-1]}" in line and "ended unexpectedly (killed by SIGKILL" in line, line
-    _assert_log_keeps_complete_steps(log, episodes_at_least=2)
+    assert_log_keeps_complete_steps(log, episodes_at_least=2)
 
 
 def test_a_policy_file_replaced_during_a_worker_run_is_not_read_again(policy_path, tmp_path):

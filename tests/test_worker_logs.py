@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from onnx_models import write_test_policy
+from kept_logs import assert_log_keeps_complete_steps
 from processes import assert_all_end, children, start_eval, wait_for_log
 
 from terl_rt.evaluation.episodes import evaluate_policy as evaluate
@@ -66,10 +67,7 @@ def test_ctrl_c_of_a_worker_run_writes_every_received_step_and_ends_the_workers(
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()
-    reader = EpisodeLogReader(log)
-    assert not reader.truncated, reader.problem
-    assert reader.episodes and all(e.steps > 0 for e in reader.episodes)
-    assert all(verify(log, e.number).ok for e in reader.episodes)
+    assert_log_keeps_complete_steps(log)  # closed on the way out, every episode complete
 
 
 def test_the_log_of_two_workers_grows_while_the_first_episode_runs(policy_path, tmp_path):
