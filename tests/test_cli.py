@@ -193,6 +193,19 @@ def test_bench_policy_table(files):
     assert "p99 (ms)" in result.stdout and "of matmul" in result.stdout
 
 
+def test_bench_policies_times_files_side_by_side_and_says_which_give_the_first_ones_outputs(files):
+    other = write_test_policy(files["folder"] / "other.onnx", seed=1)
+    result = invoke("bench", "policies", files["policy"], files["policy"], other, "--scenario", "small-11",
+                    "--rounds", "1", "--threads", "1", "--json")
+    assert result.exit_code == 0, result.output
+    (row,) = json.loads(result.stdout)["scenarios"]
+    assert row["scenario"] == "small-11" and row["rows"] > 0 and 0 < row["valid_tokens"] <= 1
+    assert row["same_outputs"] == [True, True, False] and row["speedups"][0] == 1.0
+    assert all(us > 0 for us in row["us_per_row"])
+    lonely = invoke("bench", "policies", files["policy"])
+    assert lonely.exit_code == 2 and "at least two policy files" in lonely.output
+
+
 def test_bench_eval_times_batch_sizes_side_by_side_with_the_same_episodes(files):
     result = invoke("bench", "eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "3",
                     "--max-steps", "4", "--workers", "1", "--envs", "1", "--envs", "3", "--json")

@@ -17,6 +17,7 @@ from terl_rt.cli.options import (
     policy_option,
     resolve_scenarios,
     scenario_option,
+    scenarios_option,
     seed_option,
     threads_option,
 )
@@ -27,6 +28,7 @@ from terl_rt.evaluation.speed import (
     SCALING_PURSUERS,
     SIM_WARMUP,
     backend_speeds,
+    policies_side_by_side,
     policy_latencies,
     scaling_scenario,
     simulator_speed,
@@ -149,6 +151,40 @@ def policy_command(policy_path, scenario, batches, calls: int, seed: int, thread
             f"{row.mflop_per_row:>11.2f}{row.gflops:>9.1f}{100 * row.matmul_share:>10.0f}%"
         )
         click.echo(f"{row.batch:>6}{row.ms_p50:>10.3f}{row.ms_p99:>10.3f}{row.us_per_pursuer:>12.1f}{rate}")
+
+
+@bench.command("policies")
+@click.argument("policy_paths", nargs=-1, required=True, metavar="POLICY.onnx...")
+@scenarios_option
+@click.option("--rounds", type=IntRange(min=1, max=1000), default=6, show_default=True,
+              help="Times each policy is called on all the rows.")
+@seed_option
+@threads_option
+@json_option
+def policies_command(policy_paths, scenario_names, rounds: int, seed: int, threads, as_json: bool) -> None:
+    """Policy files side by side: CPU time a row of each on the same rows, recorded along
+    the first one's own episodes (4 worlds, every 20th of 400 steps, so padding as
+    evaluation meets it), the files called in turn; and whether each gives the first one's
+    outputs bit for bit. The ratio is the first file's CPU time over each file's.
+
+    \b
+    Examples:
+      terl-rt bench policies exported/terl.onnx runs/terl-again.onnx --scenario large-80 --threads 1
+      terl-rt bench policies old.onnx new.onnx --scenario small-15 --scenario medium-48 --json
+    """
+    if len(policy_paths) < 2:
+        raise BadInput("give at least two policy files to compare")
+    policies = [open_policy(path, threads=threads) for path in policy_paths]
+    results = [policies_side_by_side(policies, scenario, rounds=rounds, seed=seed)
+               for scenario in resolve_scenarios(scenario_names, None, None)]
+    if as_json:
+        click.echo(json.dumps({"threads": threads, "rounds": rounds, "scenarios": [r.to_dict() for r in results]}))
+        return
+    click.echo(f"CPU a row, threads {threads or 'default'}, {rounds} rounds; ratio: the first file's CPU over each one's")
+    for result in results:
+        click.echo(f"{result.scenario}: {result.rows} rows, {100 * result.valid_tokens:.0f} % of their tokens valid")
+        for path, us, ratio, same in zip(result.policies, result.us_per_row, result.speedups, result.same_outputs):
+            click.echo(f"  {us:>8.1f} us/row {ratio:>6.2f}x  {'same outputs' if same else 'OTHER OUTPUTS':<13}  {path}")
 
 
 @bench.command("eval")

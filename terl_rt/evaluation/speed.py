@@ -14,6 +14,7 @@ import numpy as np
 
 from terl_rt.evaluation.backends import open_backend
 from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.optimize import record_observations
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.policy.flops import MATMUL_GFLOPS, OnnxMissing, flops_per_row
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -152,6 +153,57 @@ def policy_latencies(policy, scenario: Scenario, batches: Sequence[int] = POLICY
             matmul_share=None if gflops is None else gflops / MATMUL_GFLOPS,
         ))
     return rows
+
+
+@dataclass(frozen=True)
+class PoliciesSideBySide:
+    """CPU time a row of several policy files on the same recorded rows of one scenario,
+    called in turn (`policies_side_by_side`)."""
+
+    scenario: str
+    rows: int
+    valid_tokens: float
+    """share of the rows' tokens that are valid (not padding)."""
+    policies: list[str]
+    """the files, as given."""
+    us_per_row: list[float]
+    """CPU microseconds a row of each policy (this process, every thread), in calls as
+    `OnnxPolicy.evaluate` makes them."""
+    speedups: list[float]
+    """the first policy's CPU time over each policy's."""
+    same_outputs: list[bool]
+    """each policy's q_values and target_weights equal the first policy's, bit for bit."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def policies_side_by_side(policies: Sequence, scenario: Scenario, rounds: int = 6, seed: int = 0,
+                          envs: int = 4, steps: int = 400, every: int = 20) -> PoliciesSideBySide:
+    """Time `policies` on the rows that the first one meets in its own episodes (`envs`
+    worlds of `scenario`, seed `seed`, every `every`-th of `steps` steps: rows of whole
+    episodes, padding as evaluation meets it, not only of a reset), each policy called on
+    all rows in turn, `rounds` times, after one untimed call each. CPU time (not wall
+    clock) reads the work done even on a loaded machine."""
+    (observation,) = record_observations(policies[0], [scenario], seed=seed, envs=envs, steps=steps, every=every)
+    outputs = [policy.evaluate(observation) for policy in policies]
+    spent = [0.0] * len(policies)
+    for _ in range(rounds):
+        for index, policy in enumerate(policies):
+            start = time.process_time()
+            policy.evaluate(observation)
+            spent[index] += time.process_time() - start
+    rows = len(observation.mask)
+    return PoliciesSideBySide(
+        scenario=scenario.name, rows=rows, valid_tokens=float(observation.mask.mean()),
+        policies=[str(policy.path) for policy in policies],
+        us_per_row=[1e6 * cpu / rounds / rows for cpu in spent],
+        speedups=[spent[0] / cpu for cpu in spent],
+        same_outputs=[
+            all(np.array_equal(getattr(outputs[0], name), getattr(output, name)) for name in ("q_values", "target_weights"))
+            for output in outputs
+        ],
+    )
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from training.networks.encoders import (
     masked_mean,
     masked_softmax,
 )
-from training.networks.terl import MaskedSelfAttention, attention_bias
+from training.networks.terl import MaskedSelfAttention, ValidTokens, attention_bias
 
 ALL_MODELS = sorted(network_classes())
 TARGET_SELECTION_MODELS = ["terl", "terl-no-re"]
@@ -285,8 +285,18 @@ def test_self_attention_matches_torch_multihead_attention():
         mask = torch.rand(3, 7) < 0.5
         mask[:, 0] = True
         expected, _ = reference(tokens, tokens, tokens, key_padding_mask=~mask, need_weights=False)
-        attended = attention(tokens.flatten(0, 1), attention_bias(mask)).reshape(3, 7, 16)
-        torch.testing.assert_close(attended, expected, atol=1e-5, rtol=1e-5)
+        valid = ValidTokens(mask)
+        attended = attention(valid.gather(tokens.flatten(0, 1)), attention_bias(mask), valid)
+        torch.testing.assert_close(attended, expected[mask], atol=1e-5, rtol=1e-5)
+
+
+def test_valid_tokens_gather_the_valid_rows_in_order_and_spread_them_back_with_zeros_at_padding():
+    mask = torch.tensor([[True, False, True], [True, True, False]])
+    rows = torch.arange(6, dtype=torch.float32).reshape(6, 1) + 1
+    valid = ValidTokens(mask)
+    gathered = valid.gather(rows)
+    assert gathered.squeeze(1).tolist() == [1.0, 3.0, 4.0, 5.0]
+    assert valid.spread(gathered).squeeze(1).tolist() == [1.0, 0.0, 3.0, 4.0, 5.0, 0.0]
 
 
 def test_attention_bias_gives_padded_keys_zero_weight_and_valid_keys_their_softmax():
