@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shlex
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 import textwrap
@@ -33,6 +34,7 @@ from terl_rt.cli.options import (
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation import comparison, seed_comparison
+from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
@@ -45,9 +47,11 @@ from terl_rt.evaluation.report import (
     where_it_stands,
     write_report,
 )
+from terl_rt.evaluation.runs import Backend
 from terl_rt.files import atomic_outputs
 from terl_rt.policy.contract import META_METHOD, META_SEED
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
+from terl_rt.sim.scenario import Scenario
 
 def command_line(
     policy_paths: tuple[str, ...],
@@ -162,12 +166,12 @@ def report_command(
     )
     if len(files) > 1 or beyond:
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
+        run = ComparisonRun(scenario_names, episodes, seed, max_steps, workers, backend, address, threads, out_dir,
+                            as_json, force, command)
         if beyond or over_seeds(policies):
-            compare_seeds(policies, scenario_names, beyond, episodes, seed, max_steps, workers, backend, address,
-                          threads, out_dir, as_json, force, command)
+            compare_seeds(policies, beyond, run)
         else:
-            compare_policies(policies, scenario_names, episodes, seed, max_steps, workers, backend, address, threads,
-                             out_dir, as_json, force, command)
+            compare_policies(policies, run)
         return
     policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
@@ -207,99 +211,102 @@ def over_seeds(policies: list[OnnxPolicy]) -> bool:
     )
 
 
-def compare_policies(
-    policies: list[OnnxPolicy],
-    scenario_names: tuple[str, ...],
-    episodes: int,
-    seed: int,
-    max_steps: int | None,
-    workers: int | None,
-    backend: str,
-    address: str | None,
-    threads: int | None,
-    out_dir: Path,
-    as_json: bool,
-    force: bool,
-    command: str,
-) -> None:
+@dataclass(frozen=True)
+class ComparisonRun:
+    """The options of a `terl-rt report` that compares several policies, as given."""
+
+    scenario_names: tuple[str, ...]
+    episodes: int
+    seed: int
+    max_steps: int | None
+    workers: int | None
+    backend: str
+    address: str | None
+    threads: int | None
+    out_dir: Path
+    as_json: bool
+    force: bool
+    command: str
+    """the command line, as the written files quote it."""
+
+    def check_outputs(self, names: tuple[str, ...], policies: list[OnnxPolicy]) -> None:
+        """Refuse to replace existing output files without --force, naming the policies."""
+        for name in names:
+            check_output(self.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], self.force)
+
+    def evaluate(self, runner: Backend, policy: OnnxPolicy, scenarios: list[Scenario]) -> list[ScenarioResult]:
+        """One policy's results on `scenarios`, with a progress bar, on `runner`."""
+        return evaluate_with_progress(policy, scenarios, self.episodes, self.seed, max_steps=self.max_steps,
+                                      backend=runner)
+
+    def backend_runner(self) -> Backend:
+        """The evaluation backend of these options, as a context manager."""
+        return run_backend(self.backend, self.workers, self.address, self.threads)
+
+
+def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
     """`terl-rt report` with several policies, one a method (`over_seeds` is false): evaluate
     each on the scenarios in turn, in the paper's order of methods, and write
     comparison.md, .png and .json."""
     outputs = (comparison.MARKDOWN_NAME, comparison.FIGURE_NAME, comparison.JSON_NAME)
-    for name in outputs:
-        check_output(out_dir / name, "--out", [("--policy", policy.path) for policy in policies], force)
-    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
+    run.check_outputs(outputs, policies)
+    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
     methods = [(comparison.method_name(policy.name), policy) for policy in policies]
-    runs = []
-    with run_backend(backend, workers, address, threads) as runner:
+    method_runs = []
+    with run.backend_runner() as runner:
         for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
             click.echo(f"{method}: {policy.path}", err=True)
-            results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
-            runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
+            results = run.evaluate(runner, policy, scenarios)
+            method_runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
     date = datetime.now(timezone.utc)
-    runs.sort(key=lambda run: comparison.paper_order(run.method))
-    data = comparison.comparison_dict(runs, command, date)
-    paths = dict(zip(("markdown", "figure", "json"), (str(out_dir / name) for name in outputs)))
+    method_runs.sort(key=lambda method_run: comparison.paper_order(method_run.method))
+    data = comparison.comparison_dict(method_runs, run.command, date)
+    paths = dict(zip(("markdown", "figure", "json"), (str(run.out_dir / name) for name in outputs)))
     # The results reach the terminal before any file is written: a full disk cannot lose them.
-    if as_json:
+    if run.as_json:
         click.echo(json.dumps({**data, "files": paths}))
     else:
         for check in data["claims"]:
             click.echo(f"{check['verdict']:<19} {check['claim']}")
-    with atomic_outputs(out_dir, outputs, replace=force) as staging:
-        comparison.write_comparison(runs, staging, command, date)
-    if not as_json:
+    with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
+        comparison.write_comparison(method_runs, staging, run.command, date)
+    if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
 
 
-def compare_seeds(
-    policies: list[OnnxPolicy],
-    scenario_names: tuple[str, ...],
-    beyond: bool,
-    episodes: int,
-    seed: int,
-    max_steps: int | None,
-    workers: int | None,
-    backend: str,
-    address: str | None,
-    threads: int | None,
-    out_dir: Path,
-    as_json: bool,
-    force: bool,
-    command: str,
-) -> None:
+def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> None:
     """`terl-rt report` over training seeds: name each policy's method and seed (refusing
     two that cannot be told apart), evaluate each in the paper's order of methods, then by
     seed, on the scenarios (and the worlds beyond the paper with `beyond`), and write
     seed_comparison.OUTPUT_NAMES."""
     outputs = seed_comparison.OUTPUT_NAMES
-    for name in outputs:
-        check_output(out_dir / name, "--out", [("--policy", policy.path) for policy in policies], force)
+    run.check_outputs(outputs, policies)
     try:
         named = [(*seed_comparison.policy_identity(policy.metadata), policy) for policy in policies]
         seed_comparison.check_seeds([(method, run_seed, str(policy.path)) for method, run_seed, policy in named])
     except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
         raise BadInput(f"--policy: {error}") from error
-    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
+    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
     if beyond:
         scenarios += seed_comparison.beyond_scenarios()
     named.sort(key=lambda item: (comparison.paper_order(item[0]), -1 if item[1] is None else item[1]))
-    runs = []
-    with run_backend(backend, workers, address, threads) as runner:
+    seed_runs = []
+    with run.backend_runner() as runner:
         for number, (method, run_seed, policy) in enumerate(named, start=1):
             click.echo(f"[{number}/{len(named)}] {method} seed {run_seed}: {policy.path}", err=True)
-            results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
-            runs.append(seed_comparison.SeedRun(method, run_seed, policy_info(policy), tuple(results)))
+            results = run.evaluate(runner, policy, scenarios)
+            seed_runs.append(seed_comparison.SeedRun(method, run_seed, policy_info(policy), tuple(results)))
     date = datetime.now(timezone.utc)
-    stats = seed_comparison.seed_statistics(runs)
-    paths = dict(zip(("figure", "markdown", "json", "marl_eval"), (str(out_dir / name) for name in outputs)))
+    stats = seed_comparison.seed_statistics(seed_runs)
+    paths = dict(zip(("figure", "markdown", "json", "marl_eval"), (str(run.out_dir / name) for name in outputs)))
     # The results reach the terminal before any file is written: a full disk cannot lose them.
-    if as_json:
-        click.echo(json.dumps({**seed_comparison.seed_comparison_dict(runs, stats, command, date), "files": paths}))
+    if run.as_json:
+        click.echo(json.dumps({**seed_comparison.seed_comparison_dict(seed_runs, stats, run.command, date),
+                               "files": paths}))
     else:
         for check in stats.claims:
             click.echo(f"{check.verdict:<19} {check.claim}")
-    with atomic_outputs(out_dir, outputs, replace=force) as staging:
-        seed_comparison.write_seed_comparison(runs, staging, command, date, stats)
-    if not as_json:
+    with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
+        seed_comparison.write_seed_comparison(seed_runs, staging, run.command, date, stats)
+    if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")
