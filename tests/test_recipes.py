@@ -29,8 +29,9 @@ def sha256(path: Path) -> str:
 def test_every_recipe_loads_and_ships_a_file_of_the_repository():
     assert len(RECIPES) >= 7
     for path in RECIPES:
-        recipe = load_recipe(path)
-        assert (ROOT / recipe.ships).is_file(), path
+        shipped = ROOT / load_recipe(path).ships
+        # A recipe run once ships its file; one run over seeds by the grid ships <stem>-seed-<S>.onnx.
+        assert shipped.is_file() or any(shipped.parent.glob(f"{shipped.stem}-seed-*.onnx")), path
 
 
 def test_the_comparison_recipes_are_terl_papers_with_only_the_network_changed():
