@@ -18,11 +18,12 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 from training.recipe import Recipe, RecipeError, load_recipe, recipe_finished
+from training.run_lock import RUN_HELD
 
 RUN_PROGRAM = ("-m", "training", "run")
 """The Python arguments that run one cell's recipe (the cell's own arguments follow)."""
@@ -151,11 +152,14 @@ class GridOutcome:
     stopped: list[str]
     """cells stopped by a signal with a whole checkpoint, or never started after one: they go on
     when the grid runs again."""
+    elsewhere: list[str] = field(default_factory=list)
+    """cells whose folder another run holds (training.run_lock): left to it."""
 
     @property
     def exit_status(self) -> int:
-        """0: every cell finished; 130: stopped by a signal; 1: some cell failed."""
-        return 1 if self.failed else STOPPED if self.stopped else 0
+        """0: every cell finished; 130: stopped by a signal; 75: some cell runs in another
+        process; 1: some cell failed."""
+        return 1 if self.failed else STOPPED if self.stopped else RUN_HELD if self.elsewhere else 0
 
 
 def last_line(path: Path, limit: int = 300) -> str:
@@ -227,6 +231,9 @@ def run_grid(
                 if status == 0:
                     outcome.done.append(cell.name)
                     note(f"{counts()} {cell.name}: finished")
+                elif status == RUN_HELD:
+                    outcome.elsewhere.append(cell.name)
+                    note(f"{counts()} {cell.name}: another run holds its folder; left to it ({last_line(cell.log)})")
                 elif status == STOPPED or signals:
                     outcome.stopped.append(cell.name)
                     note(f"{counts()} {cell.name}: stopped with a checkpoint; the grid run again goes on from it")

@@ -58,6 +58,7 @@ from typing import Any
 
 from training.checkpoint import STATE_FILE, export_checkpoint, read_counters
 from training.config import SECTIONS, Config, ConfigError, read_fields
+from training.run_lock import holding_run_folder
 from training.train import BEST_FOLDER
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
@@ -248,11 +249,20 @@ def run_recipe(
     previous segment's `start` checkpoint. `threads` replaces every segment's run.threads (torch
     threads are set by the caller from the returned configs: see `python -m training run`);
     `seed` replaces every segment's run.seed (a later segment continues the generators of the one
-    before it, so the seed acts where the first starts).
+    before it, so the seed acts where the first starts). The run holds `out` throughout
+    (training.run_lock): another run on it raises RunFolderHeld before anything is written.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     overrides = {name: value for name, value in (("threads", threads), ("seed", seed)) if value is not None}
+    with holding_run_folder(out):
+        train_segments(recipe, out, train, overrides, show_progress, note)
+        return export_checkpoint(shipped_checkpoint(recipe, out), out / Path(recipe.ships).name)
+
+
+def train_segments(recipe: Recipe, out: Path, train: Train, overrides: dict[str, int], show_progress: bool,
+                   note: Callable[[str], None]) -> None:
+    """`run_recipe`'s training: each segment finished, resumed or started in turn, with the run
+    fields `overrides` (threads, seed) replaced in every segment's config."""
     previous: Path | None = None
     for index, segment in enumerate(recipe.segments, start=1):
         folder = segment_folder(out, index, segment)
@@ -270,4 +280,3 @@ def run_recipe(
             note(f"{label}: starting" + ("" if source is None else f" from {source}"))
             train(config, folder, resume=source, show_progress=show_progress, load_replay=not segment.refill)
         previous = folder
-    return export_checkpoint(shipped_checkpoint(recipe, out), out / Path(recipe.ships).name)

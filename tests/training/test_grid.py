@@ -8,6 +8,8 @@ import json
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -18,6 +20,7 @@ from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
 from training.grid import LocalProcesses, plan_grid, run_grid
 from training.recipe import load_recipe, segment_folder
+from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
 from terl_rt.policy.contract import META_METHOD, META_SEED
 
 BASE = """
@@ -225,3 +228,34 @@ def test_seeds_that_are_no_list_or_range_of_whole_numbers_are_one_error_line(tmp
     recipes = write_recipes(tmp_path / "recipes")
     assert main(["grid", str(recipes[0]), "--seeds", seeds, "--out", str(tmp_path / "runs")]) == 2
     assert capsys.readouterr().err.startswith("Error: Invalid value for '--seeds'")
+
+
+def test_a_cell_that_another_run_holds_is_left_to_it_and_the_grid_says_so(tmp_path):
+    # The real `python -m training run` of a tiny recipe, on a folder another process holds.
+    (tmp_path / "base.toml").write_text(BASE)
+    (tmp_path / "tiny-dqn.toml").write_text(METHODS["tiny-dqn"])
+    cells = plan_grid([tmp_path / "tiny-dqn.toml"], [1], tmp_path / "grid")
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(cells[0][0].out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        lines: list[str] = []
+        outcome = run_grid(cells, LocalProcesses(), 1, lines.append)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert outcome.elsewhere == ["tiny-dqn seed 1"] and outcome.exit_status == RUN_HELD
+    assert f"is in use by another run (process {holder.pid})" in lines[-1]
+    assert sorted(path.name for path in cells[0][0].out.iterdir()) == [LOCK_FILE]  # nothing written
+    with holding_run_folder(cells[0][0].out):  # the killed holder left no stale lock
+        pass
+
+
+HOLDER = """
+import sys, time
+from pathlib import Path
+from training.run_lock import holding_run_folder
+with holding_run_folder(Path(sys.argv[1])):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+"""A process that holds a run folder until it is killed."""

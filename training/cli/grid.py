@@ -56,7 +56,9 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
     A line on stderr for each cell that starts or ends, with the counts. A cell that fails gives
     one `Error:` line naming its log; the others go on, and the exit status is 1. Ctrl-C or
     SIGTERM is passed on to the running cells, which write whole checkpoints (exit status 130).
-    Run the same command again to go on: finished cells are skipped, cut-off ones resume.
+    Run the same command again to go on: finished cells are skipped, cut-off ones resume. A
+    cell that another run is training (a second grid over the same cells) is left to it, with
+    a line saying so (exit status 75 if nothing failed or stopped).
 
     \b
     Examples:
@@ -88,7 +90,8 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
          f"({backend})")
     outcome = run_grid(cells, runner, at_once, note)
     note(f"{len(outcome.finished) + len(outcome.done)} cells finished, {len(outcome.failed)} failed, "
-         f"{len(outcome.stopped)} stopped or not started")
+         f"{len(outcome.stopped)} stopped or not started"
+         + (f", {len(outcome.elsewhere)} running in another process" if outcome.elsewhere else ""))
     if ship is not None:
         written = ship_grid(plan_grid(recipes, seeds, out, found_seeds=True), ship, machine)
         note(f"shipped {sum(path.suffix == '.onnx' for path in written)} policies and "

@@ -17,6 +17,7 @@ from training.cli.train import train_command
 from training.cli.values import values_command
 from training.config import ConfigError
 from training.curves import CurvesError
+from training.run_lock import RUN_HELD, RunFolderHeld
 from training.stops import TrainingStopped
 
 
@@ -55,4 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingStopped as stop:  # Ctrl-C or SIGTERM: the checkpoint is written, the run can go on
         click.echo(f"Stopped: {stop}", err=True)
         return 130
+    except RunFolderHeld as held:  # another run trains in this folder: nothing was written
+        click.echo(f"Error: {held}", err=True)
+        return RUN_HELD
     return status if isinstance(status, int) else 0
