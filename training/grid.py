@@ -175,13 +175,16 @@ def last_line(path: Path, limit: int = 300) -> str:
 
 def run_grid(
     cells: Sequence[tuple[Cell, Recipe]], runner: CellRunner, at_once: int, note: Callable[[str], None],
+    stop_after_s: float | None = None,
 ) -> GridOutcome:
     """Run every cell not finished yet, at most `at_once` together, until each has ended.
 
     `note` gets a line for each cell that starts or ends, with the counts so far; a failed cell's
     line starts with "Error:" and names its log. SIGINT and SIGTERM (in the main thread) stop
-    the grid: each is passed on to the running cells, and no cell starts after one.
+    the grid: each is passed on to the running cells, and no cell starts after one. So does the
+    end of `stop_after_s` seconds, once.
     """
+    deadline = None if stop_after_s is None else time.monotonic() + stop_after_s
     outcome = GridOutcome([], [], [], [])
     waiting: list[Cell] = []
     for cell, recipe in cells:
@@ -223,6 +226,9 @@ def run_grid(
             if signals and not running:
                 break
             time.sleep(POLL_S)
+            if deadline is not None and time.monotonic() >= deadline and not signals:
+                note(f"{counts()} the time limit is reached: stopping the running cells")
+                ask_to_stop(signal.SIGTERM, None)
             for cell, handle in list(running.items()):
                 status = runner.poll(handle)
                 if status is None:

@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tarfile
 import threading
 import time
 from pathlib import Path
@@ -199,6 +200,37 @@ def test_a_signal_to_the_grid_reaches_each_running_cell_once_and_starts_no_other
         assert not (tmp_path / "runs" / method / "seed-3").exists()
     assert sorted(outcome.stopped) == ["tiny-dqn seed 1", "tiny-dqn seed 3", "tiny-terl seed 1", "tiny-terl seed 3"]
     assert outcome.exit_status == 130
+
+
+def test_a_grid_stops_its_cells_with_checkpoints_when_its_time_is_up(tmp_path):
+    cells = plan_grid(write_recipes(tmp_path / "recipes"), [1, 3], tmp_path / "runs")
+    lines: list[str] = []
+    start = time.monotonic()
+    outcome = run_grid(cells, stand_in(wait_s=60), at_once=2, note=lines.append, stop_after_s=1.0)
+    assert time.monotonic() - start < 30  # the stand-ins would wait 60 s for their signal
+    for method in METHODS:
+        assert (tmp_path / "runs" / method / "seed-1" / "signals").read_text() == "1"
+        assert not (tmp_path / "runs" / method / "seed-3").exists()
+    assert any("the time limit is reached" in line for line in lines)
+    assert len(outcome.stopped) == 4 and outcome.exit_status == 130
+
+
+def test_the_device_command_trains_the_cells_and_packs_each_methods_resume_points(tmp_path):
+    # scripts/device-grid.sh as a device machine runs it, here on tiny recipes that end in seconds.
+    root = Path(__file__).parents[2]
+    recipes = write_recipes(tmp_path / "recipes")
+    (tmp_path / "out").mkdir()
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "GRID_OUT": str(tmp_path / "runs"), "PROCESSES": "2",
+           "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    done = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
+                          cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    for method in METHODS:
+        with tarfile.open(tmp_path / "out" / f"{method}.tar.gz") as archive:
+            names = archive.getnames()
+        assert f"{method}/seed-1/2-second/state.json" in names and f"{method}/seed-1/{method}.onnx" in names
+        assert any(name.endswith("/best/model.safetensors") for name in names)
+        assert not any(name.endswith(("replay.npz", ".run-lock")) or "/snapshots" in name for name in names)
 
 
 @pytest.mark.ray

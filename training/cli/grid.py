@@ -47,8 +47,11 @@ def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
                    "(its best snapshot; terl.method and terl.seed in its metadata) and each method's card "
                    "FOLDER/<method>.md with its figure <method>-seeds.png.")
 @click.option("--machine", default=DEFAULT_MACHINE, show_default=True, help="Where the cells train, in words (cards).")
+@click.option("--stop-after", type=click.FloatRange(min=0, min_open=True), metavar="MINUTES",
+              help="Stop the grid after MINUTES as SIGTERM would: the running cells write whole checkpoints "
+                   "and no other starts (exit status 130); for a machine lent for a while, or a session's end.")
 def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, processes: int | None, backend: str,
-                 address: str | None, ship: Path | None, machine: str) -> int:
+                 address: str | None, ship: Path | None, machine: str, stop_after: float | None) -> int:
     """Run every recipe with every seed, each cell `python -m training run RECIPE --out
     DIR/<method>/seed-<S> --seed S --threads 1` in a process of its own, and (with --ship)
     ship their policies and one card per method.
@@ -88,7 +91,7 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
     note = lambda line: click.echo(line, err=True)  # noqa: E731
     note(f"grid of {len(cells)} cells ({len(recipes)} recipes x {len(seeds)} seeds) in {out}, {at_once} at once "
          f"({backend})")
-    outcome = run_grid(cells, runner, at_once, note)
+    outcome = run_grid(cells, runner, at_once, note, stop_after_s=None if stop_after is None else 60 * stop_after)
     note(f"{len(outcome.finished) + len(outcome.done)} cells finished, {len(outcome.failed)} failed, "
          f"{len(outcome.stopped)} stopped or not started"
          + (f", {len(outcome.elsewhere)} running in another process" if outcome.elsewhere else ""))
