@@ -3,7 +3,7 @@
 # 9 minutes that trains grid cells on every core, one process a cell, and brings back each
 # method's resume points in $OUT. From the repository root, on the device machine:
 #
-#   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
+#   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 7 recipes/comparison/*.toml --seeds 1-3
 #
 # The committed resume points travel with the tree (checkpoints/comparison; replay buffers are
 # not committed, so a resumed cell refills its buffer outside the schedule first). The runtime's
