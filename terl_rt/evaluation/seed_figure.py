@@ -10,12 +10,9 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from terl_rt.evaluation.report import TRAVEL_PANEL, agg_figure_classes
-
-if TYPE_CHECKING:
-    from terl_rt.evaluation.seed_comparison import Aggregate
 
 PANELS = (("success rate", "success_rate"), (TRAVEL_PANEL, "travel_time_s_limit"), ("collision ratio", "collision_ratio"))
 """(title, metric) of each panel, as the single-seed figures draw them."""
@@ -25,13 +22,25 @@ LEGEND = "bars: mean over seeds; dots: interquartile mean; error bars: 95 % stra
 """What the figure's marks are, in its legend."""
 
 
+class AggregateRow(Protocol):
+    """What a bar is drawn from: one method on one scale group over its seeds
+    (`terl_rt.evaluation.seed_comparison.Aggregate`)."""
+
+    method: str
+    group: str
+    values: dict
+    """aggregate ('mean', 'iqm') -> metric -> value."""
+    ci95: dict
+    """aggregate -> metric -> (low, high)."""
+
+
 def group_label(group: str) -> str:
     """A scale group's label under its bars, broken over two lines where it is long."""
     return group.replace(" (released config)", "\n(released)").replace(" pursuers", "\npursuers")
 
 
 def plot_seed_comparison(
-    rows: Sequence[Aggregate], groups: Sequence[str], path: str | os.PathLike, title: str = "",
+    rows: Sequence[AggregateRow], groups: Sequence[str], path: str | os.PathLike, title: str = "",
 ) -> Path:
     """Draw `rows` (one a method and scale group) into a PNG at `path`: the groups of
     `groups` that have a row, in that order, along the x axis; the methods in the order
