@@ -7,9 +7,12 @@
 #
 # The committed resume points travel with the tree (checkpoints/comparison; replay buffers are
 # not committed, so a resumed cell refills its buffer outside the schedule first). The runtime's
-# pure-Python packages that the device image lacks travel as wheels: here, before the call,
+# packages that the device image lacks (mcap and what it needs, the Foxglove schemas) travel as
+# wheels, 6.8 MB: here, before the call,
 #   echo /.whl/ >> .git/info/exclude
-#   python3 -m pip download --no-deps -d .whl mcap mcap-protobuf-support foxglove-schemas-protobuf
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#     --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+#     -d .whl mcap mcap-protobuf-support foxglove-schemas-protobuf lz4 zstandard
 # and name .whl in the call's carry. Then the cells run as `python -m training grid RECIPE...
 # --seeds ... --out $GRID_OUT --processes $PROCESSES --stop-after MINUTES` (GRID_OUT: default
 # runs/comparison; PROCESSES: default every core), which stops them with whole checkpoints when
