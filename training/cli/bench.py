@@ -38,7 +38,7 @@ def bench_command(seconds: float, **options) -> None:
     click.echo(f"  {'mix of stages':<14}" + "".join(f"{mix[mode]:14.2f}" for mode in UPDATE_MODES))
     base = mix[UPDATE_MODES[0]]
     click.echo(
-        "  against fp32 full over the mix: "
+        "  against fp32 full (untrimmed rows; the transformer skips padded tokens either way) over the mix: "
         + ", ".join(f"{mode} {mix[mode] / base:.2f}x" for mode in UPDATE_MODES[1:])
         + f"; the run uses {'bf16' if config.learner.bf16 else 'fp32'} trimmed ({result.updates_per_second:.2f} updates/s)"
     )
