@@ -215,7 +215,7 @@ def test_a_grid_stops_its_cells_with_checkpoints_when_its_time_is_up(tmp_path):
     assert len(outcome.stopped) == 4 and outcome.exit_status == 130
 
 
-def test_the_device_command_trains_the_cells_and_packs_each_methods_resume_points(tmp_path):
+def test_the_device_command_trains_the_cells_and_packs_the_resume_points_of_those_it_trained(tmp_path):
     # scripts/device-grid.sh as a device machine runs it, here on tiny recipes that end in seconds.
     root = Path(__file__).parents[2]
     recipes = write_recipes(tmp_path / "recipes")
@@ -231,6 +231,13 @@ def test_the_device_command_trains_the_cells_and_packs_each_methods_resume_point
         assert f"{method}/seed-1/2-second/state.json" in names and f"{method}/seed-1/{method}.onnx" in names
         assert any(name.endswith("/best/model.safetensors") for name in names)
         assert not any(name.endswith(("replay.npz", ".run-lock")) or "/snapshots" in name for name in names)
+    # Called again, every cell is finished and none is trained: nothing is packed.
+    for archive in (tmp_path / "out").iterdir():
+        archive.unlink()
+    again = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
+                           cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert list((tmp_path / "out").iterdir()) == []
 
 
 @pytest.mark.ray
