@@ -178,8 +178,6 @@ def report_command(
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
-    for name in (MARKDOWN_NAME, FIGURE_NAME):
-        check_output(out_dir / name, "--out", [("--policy", policy.path)], force)
     with run_backend(backend, workers, address, threads) as runner:
         results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
     info = policy_info(policy)
