@@ -264,3 +264,47 @@ def test_a_one_file_method_beside_a_grids_seeds_counts_as_its_training_configs_s
     assert [policy_identity(p.metadata) for p in policies] == [("TERL", 3), ("TERL", 1)]
     one_each = [OnnxPolicy(write_test_policy(tmp_path / f"{m}.onnx", model=m)) for m in ("terl", "iqn")]
     assert not over_seeds(one_each)  # today's one file a method: the comparison without seeds
+
+
+def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from terl_rt.cli import report as report_cli
+
+    clean = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "clean", "--json")
+    assert clean.exit_code == 0, clean.output
+    assert not (tmp_path / "clean" / report_cli.PROGRESS_FOLDER).exists()
+    evaluate = report_cli.evaluate_with_progress
+    calls = []
+
+    cut_at = [4]
+
+    def cut_off_at_the_fourth(*args, **kwargs):
+        calls.append(args[1][0].name)
+        if len(calls) in cut_at:
+            raise KeyboardInterrupt
+        return evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(report_cli, "evaluate_with_progress", cut_off_at_the_fourth)
+    cut = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "cut", "--json")
+    assert cut.exit_code != 0 and not (tmp_path / "cut" / MARL_EVAL_NAME).exists()
+    assert len(list((tmp_path / "cut" / report_cli.PROGRESS_FOLDER).glob("*.json"))) == 3
+    calls.clear()
+    cut_at.clear()
+    again = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "cut", "--json")
+    assert again.exit_code == 0, again.output
+    assert len(calls) == 8 - 3 and "3 results of an earlier run in" in again.stderr
+    assert json.loads(again.stdout)["aggregates"] == json.loads(clean.stdout)["aggregates"]
+    assert not (tmp_path / "cut" / report_cli.PROGRESS_FOLDER).exists()
+
+
+def test_beyond_episodes_sets_the_episodes_of_the_larger_worlds_alone(seeded, tmp_path):
+    pytest.importorskip("matplotlib")
+    result = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--beyond", "--scenario", "small-published-7",
+                    "--episodes", "2", "--beyond-episodes", "1", "--max-steps", "1", "--out", tmp_path, "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert [s["episodes"] for s in out["runs"][0]["scenarios"]] == [2, 1, 1, 1]
+    assert "--episodes 2 --beyond-episodes 1" in out["command"]
+    alone = invoke("report", "--policy", seeded, "--beyond-episodes", "1", "--out", tmp_path / "x")
+    assert alone.exit_code == 2
+    assert alone.stderr == "Error: --beyond-episodes: the worlds past the paper's are evaluated only with --beyond\n"

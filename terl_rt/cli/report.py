@@ -48,6 +48,7 @@ from terl_rt.evaluation.report import (
     write_report,
 )
 from terl_rt.evaluation.runs import Backend
+from terl_rt.evaluation.saved_results import SavedResults
 from terl_rt.files import atomic_outputs
 from terl_rt.policy.contract import META_METHOD, META_SEED
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
@@ -66,6 +67,7 @@ def command_line(
     backend: str = "local",
     address: str | None = None,
     beyond: bool = False,
+    beyond_episodes: int | None = None,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -75,7 +77,10 @@ def command_line(
         words += ["--scenario", name]
     if beyond:
         words.append("--beyond")
-    words += ["--episodes", str(episodes), "--seed", str(seed)]
+    words += ["--episodes", str(episodes)]
+    if beyond_episodes is not None:
+        words += ["--beyond-episodes", str(beyond_episodes)]
+    words += ["--seed", str(seed)]
     if max_steps is not None:
         words += ["--max-steps", str(max_steps)]
     if workers is not None:
@@ -108,6 +113,11 @@ def command_line(
     "times the rows (docs/benchmarks.md).",
 )
 @report_episodes_option
+@click.option(
+    "--beyond-episodes", type=click.IntRange(min=1, max=10**6), default=None, metavar="N",
+    help="Episodes in each world past the paper's, with --beyond [default: --episodes]: fewer keep a grid's "
+    "report short, an episode there costing several of large-80's (see --beyond).",
+)
 @seed_option
 @max_steps_option
 @workers_option
@@ -121,8 +131,8 @@ def command_line(
 @json_option
 @force_option
 def report_command(
-    policy_paths, scenario_names, beyond, episodes, seed, max_steps, workers, backend, address, threads, out, as_json,
-    force,
+    policy_paths, scenario_names, beyond, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
+    out, as_json, force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
@@ -147,6 +157,10 @@ def report_command(
     intervals overlap); a bar figure in the form of Fig. 3; and every episode in marl-eval's
     JSON format, DIR/comparison-marl-eval.json.
 
+    A comparison keeps each policy's result on each scenario in DIR/.report-progress as it
+    finishes: the same command run again after a cut-off (a session's end, Ctrl-C) reads
+    them back and evaluates only what is left; the folder goes once the files are written.
+
     \b
     Examples:
       terl-rt report                                   # the default policy into ./report
@@ -154,20 +168,24 @@ def report_command(
       terl-rt report --policy policies/ --scenario cc-28 --out comparison
       terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force
       terl-rt report --policy exported/comparison --beyond --scenario small-15 --episodes 10 --out /tmp/beyond
+      terl-rt report --policy exported/comparison --beyond --episodes 50 --beyond-episodes 10 --workers 2 --out docs
     """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
     except MatplotlibMissing as error:
         raise BadInput(str(error)) from error
+    if beyond_episodes is not None and not beyond:
+        raise BadInput("--beyond-episodes: the worlds past the paper's are evaluated only with --beyond")
     out_dir = output_folder(out)
     files = policy_files(policy_paths)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address, beyond,
+        beyond_episodes,
     )
     if len(files) > 1 or beyond:
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
-        run = ComparisonRun(scenario_names, episodes, seed, max_steps, workers, backend, address, threads, out_dir,
-                            as_json, force, command)
+        run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
+                            address, threads, out_dir, as_json, force, command)
         if beyond or over_seeds(policies):
             compare_seeds(policies, beyond, run)
         else:
@@ -215,6 +233,8 @@ class ComparisonRun:
 
     scenario_names: tuple[str, ...]
     episodes: int
+    beyond_episodes: int
+    """episodes in each world past the paper's (`seed_comparison.beyond_scenarios`)."""
     seed: int
     max_steps: int | None
     workers: int | None
@@ -232,14 +252,43 @@ class ComparisonRun:
         for name in names:
             check_output(self.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], self.force)
 
-    def evaluate(self, runner: Backend, policy: OnnxPolicy, scenarios: list[Scenario]) -> list[ScenarioResult]:
-        """One policy's results on `scenarios`, with a progress bar, on `runner`."""
-        return evaluate_with_progress(policy, scenarios, self.episodes, self.seed, max_steps=self.max_steps,
-                                      backend=runner)
+    @property
+    def saved(self) -> SavedResults:
+        """Where each (policy, scenario) result is kept as it finishes, until the outputs are written."""
+        return SavedResults(self.out_dir / PROGRESS_FOLDER)
+
+    def note_saved(self) -> None:
+        """Say on stderr how many results an earlier, cut-off run of the command left."""
+        if count := self.saved.count():
+            click.echo(f"{count} results of an earlier run in {self.saved.folder}: those evaluations are read back, "
+                       "not run again", err=True)
+
+    def evaluate(self, runner: Backend, policy: OnnxPolicy, scenarios: list[Scenario],
+                 episodes: int | None = None) -> list[ScenarioResult]:
+        """One policy's results on `scenarios` (`episodes` each, default the run's), with a
+        progress bar, on `runner`: each saved as it finishes, or read back where an earlier run
+        of the command saved it (`saved`)."""
+        episodes = episodes or self.episodes
+        results = []
+        for scenario in scenarios:
+            if self.max_steps is not None:
+                scenario = scenario.replace(max_steps=self.max_steps)
+            result = self.saved.load(policy.sha256, scenario, episodes, self.seed)
+            if result is None:
+                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=runner)
+                self.saved.save(policy.sha256, scenario, result)
+            else:
+                click.echo(f"{scenario.name:<14} {episodes} episodes read back from {self.saved.folder}", err=True)
+            results.append(result)
+        return results
 
     def backend_runner(self) -> Backend:
         """The evaluation backend of these options, as a context manager."""
         return run_backend(self.backend, self.workers, self.address, self.threads)
+
+
+PROGRESS_FOLDER = ".report-progress"
+"""The folder in --out that keeps a comparison's finished evaluations until its files are written."""
 
 
 def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
@@ -251,6 +300,7 @@ def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
     scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
     methods = [(comparison.method_name(policy.name), policy) for policy in policies]
     method_runs = []
+    run.note_saved()
     with run.backend_runner() as runner:
         for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
             click.echo(f"{method}: {policy.path}", err=True)
@@ -268,6 +318,7 @@ def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
             click.echo(f"{check['verdict']:<19} {check['claim']}")
     with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
         comparison.write_comparison(method_runs, staging, run.command, date)
+    run.saved.remove()
     if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
 
@@ -285,14 +336,15 @@ def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) 
     except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
         raise BadInput(f"--policy: {error}") from error
     scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
-    if beyond:
-        scenarios += seed_comparison.beyond_scenarios()
+    worlds = seed_comparison.beyond_scenarios() if beyond else []
     named.sort(key=lambda item: (comparison.paper_order(item[0]), -1 if item[1] is None else item[1]))
     seed_runs = []
+    run.note_saved()
     with run.backend_runner() as runner:
         for number, (method, run_seed, policy) in enumerate(named, start=1):
             click.echo(f"[{number}/{len(named)}] {method} seed {run_seed}: {policy.path}", err=True)
             results = run.evaluate(runner, policy, scenarios)
+            results += run.evaluate(runner, policy, worlds, run.beyond_episodes)
             seed_runs.append(seed_comparison.SeedRun(method, run_seed, policy_info(policy), tuple(results)))
     date = datetime.now(timezone.utc)
     stats = seed_comparison.seed_statistics(seed_runs)
@@ -306,5 +358,6 @@ def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) 
             click.echo(f"{check.verdict:<19} {check.claim}")
     with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
         seed_comparison.write_seed_comparison(seed_runs, staging, run.command, date, stats)
+    run.saved.remove()
     if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")
