@@ -298,3 +298,35 @@ with holding_run_folder(Path(sys.argv[1])):
     time.sleep(600)
 """
 """A process that holds a run folder until it is killed."""
+
+
+def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of_one_cut_off(tmp_path):
+    root = Path(__file__).parents[2]
+    segment_files = ("config.json", "state.json", "metrics.jsonl", "model.safetensors", "target.safetensors",
+                     "optimizer.pt", "replay.npz", "snapshots/80000/model.safetensors", "best/model.safetensors",
+                     "best/config.json", "best/state.json", "best/optimizer.pt", "best/target.safetensors")
+    for cell, finished in (("iqn/seed-1", True), ("iqn/seed-2", False)):
+        folder = tmp_path / "runs" / cell
+        for name in segment_files:
+            (folder / "1-curriculum" / name).parent.mkdir(parents=True, exist_ok=True)
+            (folder / "1-curriculum" / name).write_text(name)
+        (folder / ".run-lock").write_text("")
+        if finished:
+            (folder / "iqn.onnx").write_text("onnx")
+        folder.with_suffix(".log").write_text("log")
+    done = subprocess.run([sys.executable, str(root / "scripts" / "keep-cells.py"), str(tmp_path / "runs"),
+                           str(tmp_path / "kept")], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["iqn/seed-1: finished", "iqn/seed-2: cut off"]
+
+    def files(cell):
+        return sorted(str(p.relative_to(tmp_path / "kept" / cell)) for p in (tmp_path / "kept" / cell).rglob("*")
+                      if p.is_file())
+
+    shipped = ["1-curriculum/best/config.json", "1-curriculum/best/model.safetensors", "1-curriculum/best/state.json",
+               "1-curriculum/config.json", "1-curriculum/metrics.jsonl", "1-curriculum/state.json"]
+    assert files("iqn/seed-1") == sorted(shipped + ["iqn.onnx"])
+    assert files("iqn/seed-2") == sorted(shipped + [
+        "1-curriculum/best/optimizer.pt", "1-curriculum/best/target.safetensors", "1-curriculum/model.safetensors",
+        "1-curriculum/optimizer.pt", "1-curriculum/target.safetensors"])
+    assert (tmp_path / "kept" / "iqn" / "seed-2.log").read_text() == "log"
