@@ -1,5 +1,6 @@
-"""The comparison over training seeds: terl_rt.evaluation.seed_comparison, its marl-eval
-export and `terl-rt report` on policies that carry terl.method and terl.seed.
+"""The comparison over training seeds: terl_rt.evaluation.seed_comparison, its files
+(seed_comparison_files), its marl-eval export and `terl-rt report` on policies that carry
+terl.method and terl.seed.
 
 The library tests use hand-made results (tests/made_results.py) whose aggregates are
 known: every TERL seed succeeds everywhere, one IQN seed always and the other never.
@@ -24,16 +25,18 @@ from terl_rt.evaluation.comparison import ComparisonError
 from terl_rt.evaluation.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
 from terl_rt.evaluation.seed_comparison import (
     CANNOT_TELL,
-    MARL_EVAL_NAME,
-    OUTPUT_NAMES,
     SeedRun,
     beyond_scenarios,
     check_seeds,
     group_of,
     policy_identity,
+    seed_statistics,
+)
+from terl_rt.evaluation.seed_comparison_files import (
+    MARL_EVAL_NAME,
+    OUTPUT_NAMES,
     render_seed_markdown,
     seed_comparison_dict,
-    seed_statistics,
     write_seed_comparison,
 )
 from terl_rt.evaluation.speed import scaling_scenario

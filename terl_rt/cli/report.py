@@ -33,7 +33,7 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
-from terl_rt.evaluation import comparison, seed_comparison
+from terl_rt.evaluation import comparison, seed_comparison, seed_comparison_files
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
@@ -327,8 +327,8 @@ def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) 
     """`terl-rt report` over training seeds: name each policy's method and seed (refusing
     two that cannot be told apart), evaluate each in the paper's order of methods, then by
     seed, on the scenarios (and the worlds beyond the paper with `beyond`), and write
-    seed_comparison.OUTPUT_NAMES."""
-    outputs = seed_comparison.OUTPUT_NAMES
+    seed_comparison_files.OUTPUT_NAMES."""
+    outputs = seed_comparison_files.OUTPUT_NAMES
     run.check_outputs(outputs, policies)
     try:
         named = [(*seed_comparison.policy_identity(policy.metadata), policy) for policy in policies]
@@ -351,13 +351,13 @@ def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) 
     paths = dict(zip(("figure", "markdown", "json", "marl_eval"), (str(run.out_dir / name) for name in outputs)))
     # The results reach the terminal before any file is written: a full disk cannot lose them.
     if run.as_json:
-        click.echo(json.dumps({**seed_comparison.seed_comparison_dict(seed_runs, stats, run.command, date),
+        click.echo(json.dumps({**seed_comparison_files.seed_comparison_dict(seed_runs, stats, run.command, date),
                                "files": paths}))
     else:
         for check in stats.claims:
             click.echo(f"{check.verdict:<19} {check.claim}")
     with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
-        seed_comparison.write_seed_comparison(seed_runs, staging, run.command, date, stats)
+        seed_comparison_files.write_seed_comparison(seed_runs, staging, run.command, date, stats)
     run.saved.remove()
     if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")

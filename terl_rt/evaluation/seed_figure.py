@@ -1,6 +1,7 @@
 """The paper's Fig. 3 over training seeds: one panel a metric, the scale groups along the
 x axis, one bar a method (its mean over seeds), the interquartile mean as a dot and the
-mean's 95 % stratified bootstrap interval as error bars (`terl_rt.evaluation.seed_comparison`).
+mean's 95 % stratified bootstrap interval as error bars (the aggregates of
+`terl_rt.evaluation.seed_comparison`, drawn for `seed_comparison_files`).
 
 matplotlib draws it (the `report` extra), imported only when a figure is drawn.
 """
