@@ -59,12 +59,12 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     config.to_file(config_file)
     assert main(["train", "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"]) == 0
     card_path = tmp_path / "iqn.md"
-    assert main(["card", str(out), "--onnx", "exported/comparison/iqn.onnx", "--recipe", "recipes/comparison/iqn.toml",
+    assert main(["card", str(out), "--onnx", "exported/comparison/iqn-seed-1.onnx", "--recipe", "recipes/comparison/iqn.toml",
                  "-o", str(card_path)]) == 0
     card = card_path.read_text()
     counters = read_counters(out)
     model = load_network(out)[0]
-    assert card.startswith("# exported/comparison/iqn.onnx — IQN, a run of 0 k environment steps")
+    assert card.startswith("# exported/comparison/iqn-seed-1.onnx — IQN, a run of 0 k environment steps")
     assert f"**{sum(p.numel() for p in model.parameters()):,} parameters**" in card
     assert f"**320 environment steps, {counters.updates:,} gradient updates" in card
     snapshots = [json.loads(line) for line in (out / METRICS_FILE).read_text().splitlines()]
@@ -72,6 +72,6 @@ def test_model_card_reads_the_run_it_describes(tmp_path):
     assert len(snapshots) == 2
     assert sum(line.startswith("| 0 k |") for line in card.splitlines()) == 2
     assert f"at {counters.best_step:,} steps" in card
-    digest = hashlib.sha256(Path("exported/comparison/iqn.onnx").read_bytes()).hexdigest()
-    assert f"- **Weights**: `exported/comparison/iqn.onnx`, sha256 `{digest}`." in card
+    digest = hashlib.sha256(Path("exported/comparison/iqn-seed-1.onnx").read_bytes()).hexdigest()
+    assert f"- **Weights**: `exported/comparison/iqn-seed-1.onnx`, sha256 `{digest}`." in card
     assert "- **Recipe**: [`recipes/comparison/iqn.toml`]" in card
