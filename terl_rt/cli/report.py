@@ -168,7 +168,7 @@ def report_command(
       terl-rt report --policy policies/ --scenario cc-28 --out comparison
       terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force
       terl-rt report --policy exported/comparison --beyond --scenario small-15 --episodes 10 --out /tmp/beyond
-      terl-rt report --policy exported/comparison --beyond --episodes 50 --beyond-episodes 10 --workers 2 --out docs
+      terl-rt report --policy exported/comparison --beyond --episodes 50 --beyond-episodes 10 --workers 2 --out docs --force
     """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
