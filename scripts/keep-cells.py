@@ -7,7 +7,8 @@ Every cell of GRID_OUT (or those named) replaces its copy under KEPT, with its l
 - a finished cell (its <method>.onnx is there): each segment's config, state and metrics, the
   model, config and state of its best/ snapshot, and the exported file (`python -m training
   grid --ship` ships from these);
-- a cell cut off: all of that and each segment's weights and optimizer, its resume point.
+- a cell cut off: all of that and its last segment's weights and optimizer, its resume point
+  (the segments before it are done: their weights are no longer read).
 Replay buffers (hundreds of MB; a resumed cell refills its buffer first), the snapshots beside
 best/ and run locks stay behind. Resume everything with `cp -r checkpoints/comparison
 runs/comparison` and the same `python -m training grid` command (docs/training.md).
@@ -26,10 +27,13 @@ WEIGHTS = {"model.safetensors", "target.safetensors", "optimizer.pt"}
 
 def keep_cell(cell: Path, kept: Path) -> str:
     finished = any(cell.glob("*.onnx"))
+    segments = sorted((p for p in cell.iterdir() if p.is_dir() and p.name.split("-")[0].isdigit()),
+                      key=lambda p: int(p.name.split("-")[0]))
+    resumed = None if finished or not segments else segments[-1].name
 
     def left_behind(folder: str, names: list[str]) -> set[str]:
         dropped = LEFT_BEHIND & set(names)
-        if finished and Path(folder).parent == cell:  # a segment's own files
+        if Path(folder).parent == cell and Path(folder).name != resumed:  # a segment's own files
             dropped |= WEIGHTS & set(names)
         elif finished and Path(folder).name == "best":  # its model is what ships
             dropped |= (WEIGHTS - {"model.safetensors"}) & set(names)

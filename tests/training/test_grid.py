@@ -307,9 +307,10 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
                      "best/config.json", "best/state.json", "best/optimizer.pt", "best/target.safetensors")
     for cell, finished in (("iqn/seed-1", True), ("iqn/seed-2", False)):
         folder = tmp_path / "runs" / cell
-        for name in segment_files:
-            (folder / "1-curriculum" / name).parent.mkdir(parents=True, exist_ok=True)
-            (folder / "1-curriculum" / name).write_text(name)
+        for segment in ("1-curriculum", "2-last-stage"):
+            for name in segment_files:
+                (folder / segment / name).parent.mkdir(parents=True, exist_ok=True)
+                (folder / segment / name).write_text(name)
         (folder / ".run-lock").write_text("")
         if finished:
             (folder / "iqn.onnx").write_text("onnx")
@@ -323,10 +324,11 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
         return sorted(str(p.relative_to(tmp_path / "kept" / cell)) for p in (tmp_path / "kept" / cell).rglob("*")
                       if p.is_file())
 
-    shipped = ["1-curriculum/best/config.json", "1-curriculum/best/model.safetensors", "1-curriculum/best/state.json",
-               "1-curriculum/config.json", "1-curriculum/metrics.jsonl", "1-curriculum/state.json"]
+    shipped = [f"{segment}/{name}" for segment in ("1-curriculum", "2-last-stage") for name in (
+        "best/config.json", "best/model.safetensors", "best/state.json", "config.json", "metrics.jsonl", "state.json")]
     assert files("iqn/seed-1") == sorted(shipped + ["iqn.onnx"])
     assert files("iqn/seed-2") == sorted(shipped + [
-        "1-curriculum/best/optimizer.pt", "1-curriculum/best/target.safetensors", "1-curriculum/model.safetensors",
-        "1-curriculum/optimizer.pt", "1-curriculum/target.safetensors"])
+        f"{segment}/best/{name}" for segment in ("1-curriculum", "2-last-stage") for name in ("optimizer.pt",
+                                                                                            "target.safetensors")
+    ] + ["2-last-stage/model.safetensors", "2-last-stage/optimizer.pt", "2-last-stage/target.safetensors"])
     assert (tmp_path / "kept" / "iqn" / "seed-2.log").read_text() == "log"
