@@ -40,7 +40,7 @@ def keep_cell(cell: Path, kept: Path) -> str:
         return dropped
 
     shutil.rmtree(kept, ignore_errors=True)
-    shutil.copytree(cell, kept, ignore=lambda folder, names: left_behind(folder, names))
+    shutil.copytree(cell, kept, ignore=left_behind)
     log = cell.with_suffix(".log")
     if log.exists():
         shutil.copy2(log, kept.with_suffix(".log"))
