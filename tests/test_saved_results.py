@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 
 from terl_rt.evaluation.episodes import scenario_result
-from terl_rt.evaluation import saved_results
 from terl_rt.evaluation.saved_results import SavedResults
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
@@ -41,10 +40,7 @@ def test_another_policy_scenario_step_limit_episodes_or_seed_is_another_evaluati
     assert saved.load(SHA, scenario, 2, 4) is None
 
 
-def test_a_file_that_is_no_such_result_is_evaluated_again_with_a_warning(tmp_path, caplog, monkeypatch):
-    # A logger of its own: what other tests' libraries did to the module's logger (the whole suite
-    # once left it silent) does not reach this one.
-    monkeypatch.setattr(saved_results, "logger", logging.getLogger("test_saved_results"))
+def test_a_file_that_is_no_such_result_is_evaluated_again_with_a_warning(tmp_path, caplog):
     scenario = Scenario.preset("small-15")
     saved = SavedResults(tmp_path)
     path = saved.save(SHA, scenario, made_result(scenario))
