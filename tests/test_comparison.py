@@ -21,11 +21,8 @@ from onnx_models import write_broken_policy, write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
+from terl_rt.evaluation.claims import CLAIMS, DOES_NOT_REPRODUCE, NOT_MEASURED, REPRODUCES
 from terl_rt.evaluation.comparison import (
-    CLAIMS,
-    DOES_NOT_REPRODUCE,
-    NOT_MEASURED,
-    REPRODUCES,
     ComparisonError,
     MethodRun,
     check_methods,

@@ -28,14 +28,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from terl_rt.evaluation import seed_stats
-from terl_rt.evaluation.comparison import (
-    NOT_MEASURED,
-    ClaimCheck,
-    ComparisonError,
-    check_claims,
-    method_name,
-    paper_order,
-)
+from terl_rt.evaluation.claims import NOT_MEASURED, ClaimCheck, check_claims
+from terl_rt.evaluation.comparison import ComparisonError, method_name, paper_order
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.paper import REPORT_GROUPS, TERL, scale_group
 from terl_rt.evaluation.speed import scaling_scenario
@@ -257,7 +251,7 @@ def _intervals_by_metric(intervals: np.ndarray) -> dict[str, tuple[float, float]
 
 
 def seed_claim_checks(rows: Sequence[Aggregate]) -> list[ClaimCheck]:
-    """The paper's claims (`comparison.CLAIMS`) judged on the means over seeds and their
+    """The paper's claims (`claims.CLAIMS`) judged on the means over seeds and their
     95 % stratified bootstrap intervals: 'reproduces' or 'does not reproduce' where the
     intervals give that verdict too, 'cannot tell' where they overlap, 'not measured'
     where a method or group a claim needs was not evaluated."""
