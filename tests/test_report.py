@@ -20,9 +20,9 @@ from PIL import Image
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.paper import GOALS, PRESET_GROUPS, SMALL_RELEASED, TERL_BY_GROUP, paper_group, scale_group
+from terl_rt.evaluation.figures import MatplotlibMissing
 from terl_rt.evaluation.report import (
     REPORT_SUITE,
-    MatplotlibMissing,
     goal_checks,
     group_summaries,
     render_markdown,

@@ -35,15 +35,14 @@ from terl_rt.cli.options import (
 from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation import comparison, seed_comparison, seed_comparison_files
 from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.figures import MatplotlibMissing, require_matplotlib
 from terl_rt.evaluation.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
     REPORT_SUITE,
-    MatplotlibMissing,
     ReportPaths,
     goal_checks,
     group_summaries,
-    require_matplotlib,
     where_it_stands,
     write_report,
 )

@@ -5,7 +5,7 @@ and with its ablations w/o RE and w/o TS (Table IV); policy.md section 4 holds i
 numbers and claims. `write_comparison` takes one `MethodRun` a policy (its evaluations
 on the same scenarios) and writes:
 
-- a figure in the form of Fig. 3 (`terl_rt.evaluation.report.plot_comparison`);
+- a figure in the form of Fig. 3 (`terl_rt.evaluation.figures.plot_comparison`);
 - Table III: every method on CC beside the paper's numbers;
 - Table IV: TERL, w/o RE and w/o TS per scale group beside the paper's ablation;
 - every method per scale group;
@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 from terl_rt.evaluation.claims import ClaimCheck, check_claims, claim_metrics
 from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.evaluation.figures import plot_comparison, require_matplotlib
 from terl_rt.evaluation.paper import (
     ABLATION_TABLE,
     ABLATIONS,
@@ -45,8 +46,6 @@ from terl_rt.evaluation.report import (
     comparability_note,
     group_summaries,
     join_words,
-    plot_comparison,
-    require_matplotlib,
     run_settings,
     training_steps_text,
 )
@@ -293,7 +292,7 @@ def write_comparison(
 
     runs: one a policy, each method once (ComparisonError otherwise), at least two;
     command: the command line that produced them; date: when (default now, UTC).
-    Raises `report.MatplotlibMissing` before writing anything when matplotlib is absent.
+    Raises `figures.MatplotlibMissing` before writing anything when matplotlib is absent.
     """
     if len(runs) < 2:
         raise ValueError("write_comparison needs at least two MethodRuns; one policy is write_report's")

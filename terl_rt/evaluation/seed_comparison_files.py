@@ -18,7 +18,8 @@ from typing import NamedTuple
 from terl_rt.evaluation import seed_stats
 from terl_rt.evaluation.marl_eval import marl_eval_dict
 from terl_rt.evaluation.paper import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
-from terl_rt.evaluation.report import comparability_note, join_words, require_matplotlib, run_settings, training_steps_text
+from terl_rt.evaluation.figures import require_matplotlib
+from terl_rt.evaluation.report import comparability_note, join_words, run_settings, training_steps_text
 from terl_rt.evaluation.seed_comparison import (
     AGGREGATES,
     BEYOND_PURSUERS,
@@ -220,7 +221,7 @@ def write_seed_comparison(
     """Write OUTPUT_NAMES into `out_dir` (made if missing). runs: one a policy, each
     (method, seed) once (ComparisonError otherwise), all on the same scenarios; command:
     the command line that produced them; date: when (default now, UTC); stats: their
-    `seed_statistics`, computed here when not given. Raises `report.MatplotlibMissing`
+    `seed_statistics`, computed here when not given. Raises `figures.MatplotlibMissing`
     before writing anything when matplotlib is absent."""
     if not runs:
         raise ValueError("write_seed_comparison needs at least one SeedRun")

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
 
-from terl_rt.evaluation.report import TRAVEL_PANEL, agg_figure_classes
+from terl_rt.evaluation.figures import TRAVEL_PANEL, agg_figure_classes
 
 PANELS = (("success rate", "success_rate"), (TRAVEL_PANEL, "travel_time_s_limit"), ("collision ratio", "collision_ratio"))
 """(title, metric) of each panel, as the single-seed figures draw them."""
