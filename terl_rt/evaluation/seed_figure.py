@@ -70,7 +70,8 @@ def plot_seed_comparison(
         if 0 < paper_groups < len(shown):
             ax.axvline(paper_groups - 0.5, color="0.5", linestyle=":")
             ax.text(paper_groups - 0.4, 0.98, "beyond the paper", transform=ax.get_xaxis_transform(), va="top",
-                    fontsize=8, color="0.4")
+                    fontsize=8, color="0.4", zorder=5,
+                    bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.85, "pad": 1.5})  # over tall bars
         ax.set_xticks(range(len(shown)), [group_label(g) for g in shown], fontsize=8)
         ax.set_title(title_text)
         ax.grid(True, axis="y", alpha=0.3)
