@@ -7,13 +7,8 @@
 #
 # The committed resume points travel with the tree (checkpoints/comparison; replay buffers are
 # not committed, so a resumed cell refills its buffer outside the schedule first). The runtime's
-# packages that the device image lacks (mcap and what it needs, the Foxglove schemas) travel as
-# wheels, 6.8 MB: here, before the call,
-#   echo /.whl/ >> .git/info/exclude
-#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
-#     --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
-#     -d .whl mcap mcap-protobuf-support foxglove-schemas-protobuf lz4 zstandard
-# and name .whl in the call's carry. Then the cells run as `python -m training grid RECIPE...
+# packages that the device image lacks travel as wheels (.whl, carried; scripts/device-wheels.sh
+# says how to make them). Then the cells run as `python -m training grid RECIPE...
 # --seeds ... --out $GRID_OUT --processes $PROCESSES --stop-after MINUTES` (GRID_OUT: default
 # runs/comparison; PROCESSES: default every core), which stops them with whole checkpoints when
 # the minutes are up, and the cells that this call trained (their folders and logs; finished
@@ -26,10 +21,7 @@ set -euo pipefail
 minutes=$1
 shift
 grid_out=${GRID_OUT:-runs/comparison}
-if [ -d .whl ] && ! python3 -c 'import mcap_protobuf, foxglove_schemas_protobuf' 2>/dev/null; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
-    export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
-fi
+source scripts/device-wheels.sh
 mkdir -p "$grid_out"
 started=$(mktemp)
 status=0

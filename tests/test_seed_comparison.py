@@ -10,8 +10,13 @@ The CLI runs tiny linear policies (tests/onnx_models.py), two short episodes a s
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+import tarfile
 from dataclasses import replace
 from datetime import datetime, timezone
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -311,3 +316,34 @@ def test_beyond_episodes_sets_the_episodes_of_the_larger_worlds_alone(seeded, tm
     alone = invoke("report", "--policy", seeded, "--beyond-episodes", "1", "--out", tmp_path / "x")
     assert alone.exit_code == 2
     assert alone.stderr == "Error: --beyond-episodes: the worlds past the paper's are evaluated only with --beyond\n"
+
+
+def test_the_device_command_brings_back_what_it_finished_and_then_the_pages(seeded, tmp_path):
+    # scripts/device-report.sh as a device machine runs it: cut off by its minutes while the
+    # worlds past the paper run a million episodes, it packs the results it finished; unpacked
+    # elsewhere, the same report with one episode there reads them back, ends, and packs the pages.
+    pytest.importorskip("matplotlib")
+    root = Path(__file__).parents[1]
+    archive_path = tmp_path / "out" / "report.tar.gz"
+    archive_path.parent.mkdir()
+    options = ["--policy", str(seeded / "terl-seed-1.onnx"), "--scenario", "small-published-7", "--episodes", "1",
+               "--max-steps", "1", "--beyond"]
+
+    def device_report(docs: Path, minutes: str, beyond_episodes: str) -> tuple[str, list[str]]:
+        env = {**os.environ, "OUT": str(archive_path.parent), "REPORT_OUT": str(docs), "WORKERS": "1",
+               "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+        done = subprocess.run(["bash", str(root / "scripts" / "device-report.sh"), minutes, *options,
+                               "--beyond-episodes", beyond_episodes],
+                              cwd=root, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        with tarfile.open(archive_path) as archive:
+            return done.stderr, sorted(archive.getnames())
+
+    stderr, names = device_report(tmp_path / "device", "0.1", "1000000")
+    assert "stopped after 0.1 minutes" in stderr
+    assert any(name.endswith(".json") for name in names) and all(name.startswith(".report-progress") for name in names)
+    with tarfile.open(archive_path) as archive:
+        archive.extractall(tmp_path / "docs", filter="data")
+    stderr, names = device_report(tmp_path / "docs", "5", "1")
+    assert "1 results of an earlier run in" in stderr
+    assert names == ["comparison-marl-eval.json", "comparison.json", "comparison.md", "comparison.png"]
