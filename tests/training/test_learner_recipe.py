@@ -14,9 +14,9 @@ from terl_rt.sim.world import World
 from training.buffer import ReplayBuffer, trim_padding
 from training.config import Config, ConfigError
 from training.networks import network_classes
+from training.throughput import UPDATE_MODES, time_updates
 from training.train import (
-    UPDATE_MODES, TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_step, td_loss,
-    time_updates,
+    TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_step, td_loss,
 )
 from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 

@@ -16,7 +16,7 @@ from training.cli.options import config_options, resolve_config, set_threads
 def bench_command(seconds: float, **options) -> None:
     """Time rollouts (per curriculum stage) and updates; estimate a run's wall clock.
     Without --model or --config: TERL with the shipped settings."""
-    from training.train import UPDATE_MODES, benchmark
+    from training.throughput import UPDATE_MODES, benchmark
 
     config = resolve_config(options, default_model="terl")
     set_threads(config.run.threads)
