@@ -305,6 +305,23 @@ def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, t
     assert not (tmp_path / "cut" / report_cli.PROGRESS_FOLDER).exists()
 
 
+def test_keep_progress_leaves_the_evaluations_for_a_later_comparison_with_more_policies(seeded, tmp_path):
+    pytest.importorskip("matplotlib")
+    from terl_rt.cli import report as report_cli
+
+    first = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--policy", seeded / "iqn-seed-1.onnx", *TINY,
+                   "--out", tmp_path, "--keep-progress")
+    assert first.exit_code == 0, first.output
+    assert len(list((tmp_path / report_cli.PROGRESS_FOLDER).glob("*.json"))) == 4  # 2 policies x 2 scenarios
+    every = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path, "--force")
+    assert every.exit_code == 0, every.output
+    assert "4 results of an earlier run in" in every.stderr and "[4/4] IQN seed 2: " in every.stderr
+    assert not (tmp_path / report_cli.PROGRESS_FOLDER).exists()
+    alone = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--out", tmp_path / "one", "--keep-progress")
+    assert alone.exit_code == 2
+    assert alone.stderr == "Error: --keep-progress: only a comparison (several policies, or --beyond) keeps its evaluations\n"
+
+
 def test_beyond_episodes_sets_the_episodes_of_the_larger_worlds_alone(seeded, tmp_path):
     pytest.importorskip("matplotlib")
     result = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--beyond", "--scenario", "small-published-7",
@@ -318,10 +335,11 @@ def test_beyond_episodes_sets_the_episodes_of_the_larger_worlds_alone(seeded, tm
     assert alone.stderr == "Error: --beyond-episodes: the worlds past the paper's are evaluated only with --beyond\n"
 
 
-def test_the_device_command_brings_back_what_it_finished_and_then_the_pages(seeded, tmp_path):
-    # scripts/device-report.sh as a device machine runs it: cut off by its minutes while the
-    # worlds past the paper run a million episodes, it packs the results it finished; unpacked
-    # elsewhere, the same report with one episode there reads them back, ends, and packs the pages.
+def test_the_device_command_brings_back_its_results_and_pages_and_stops_on_time(seeded, tmp_path):
+    # scripts/device-report.sh as a device machine runs it, on one policy with the worlds past the
+    # paper: it packs the pages and its four results (small-published-7 and the three worlds);
+    # unpacked elsewhere, the same report reads all four back; cut off by its minutes while the
+    # worlds run a million episodes each, it stops in time and exits 0.
     pytest.importorskip("matplotlib")
     root = Path(__file__).parents[1]
     archive_path = tmp_path / "out" / "report.tar.gz"
@@ -329,21 +347,27 @@ def test_the_device_command_brings_back_what_it_finished_and_then_the_pages(seed
     options = ["--policy", str(seeded / "terl-seed-1.onnx"), "--scenario", "small-published-7", "--episodes", "1",
                "--max-steps", "1", "--beyond"]
 
-    def device_report(docs: Path, minutes: str, beyond_episodes: str) -> tuple[str, list[str]]:
+    def device_report(docs: Path, minutes: str, beyond_episodes: str) -> str:
         env = {**os.environ, "OUT": str(archive_path.parent), "REPORT_OUT": str(docs), "WORKERS": "1",
                "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+        archive_path.unlink(missing_ok=True)
         done = subprocess.run(["bash", str(root / "scripts" / "device-report.sh"), minutes, *options,
                                "--beyond-episodes", beyond_episodes],
                               cwd=root, env=env, capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr
-        with tarfile.open(archive_path) as archive:
-            return done.stderr, sorted(archive.getnames())
+        return done.stderr
 
-    stderr, names = device_report(tmp_path / "device", "0.1", "1000000")
-    assert "stopped after 0.1 minutes" in stderr
-    assert any(name.endswith(".json") for name in names) and all(name.startswith(".report-progress") for name in names)
+    def packed() -> list[str]:
+        with tarfile.open(archive_path) as archive:
+            return sorted(archive.getnames())
+
+    device_report(tmp_path / "device", "5", "1")
+    pages = ["comparison-marl-eval.json", "comparison.json", "comparison.md", "comparison.png"]
+    assert [name for name in packed() if not name.startswith(".report-progress")] == pages
+    assert len([name for name in packed() if name.startswith(".report-progress/") and name.endswith(".json")]) == 4
     with tarfile.open(archive_path) as archive:
         archive.extractall(tmp_path / "docs", filter="data")
-    stderr, names = device_report(tmp_path / "docs", "5", "1")
-    assert "1 results of an earlier run in" in stderr
-    assert names == ["comparison-marl-eval.json", "comparison.json", "comparison.md", "comparison.png"]
+    stderr = device_report(tmp_path / "docs", "5", "1")
+    assert "4 results of an earlier run in" in stderr and stderr.count("episodes read back from") == 4
+    stderr = device_report(tmp_path / "docs", "0.1", "1000000")
+    assert "stopped after 0.1 minutes: the same command goes on from" in stderr

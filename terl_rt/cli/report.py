@@ -127,11 +127,18 @@ def command_line(
     "--out", type=str, default="report", show_default=True, metavar="DIR",
     help="Folder to write results.md and results.png to (made if missing).",
 )
+@click.option(
+    "--keep-progress", is_flag=True,
+    help="Keep a comparison's DIR/.report-progress once its files are written: a later comparison with more "
+    "policies (a grid's seeds as they ship) reads those evaluations back. They are found by the policy file's "
+    "bytes, the scenario, the episodes and the seed, not by the simulator's code: remove the folder after "
+    "changing that.",
+)
 @json_option
 @force_option
 def report_command(
     policy_paths, scenario_names, beyond, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
-    out, as_json, force,
+    out, keep_progress, as_json, force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
@@ -158,7 +165,8 @@ def report_command(
 
     A comparison keeps each policy's result on each scenario in DIR/.report-progress as it
     finishes: the same command run again after a cut-off (a session's end, Ctrl-C) reads
-    them back and evaluates only what is left; the folder goes once the files are written.
+    them back and evaluates only what is left; the folder goes once the files are written
+    (unless --keep-progress).
 
     \b
     Examples:
@@ -168,6 +176,7 @@ def report_command(
       terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force
       terl-rt report --policy exported/comparison --beyond --scenario small-15 --episodes 10 --out /tmp/beyond
       terl-rt report --policy exported/comparison --beyond --episodes 50 --beyond-episodes 10 --workers 2 --out docs --force
+      terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force --keep-progress
     """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
@@ -184,12 +193,14 @@ def report_command(
     if len(files) > 1 or beyond:
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
         run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
-                            address, threads, out_dir, as_json, force, command)
+                            address, threads, out_dir, keep_progress, as_json, force, command)
         if beyond or over_seeds(policies):
             compare_seeds(policies, beyond, run)
         else:
             compare_policies(policies, run)
         return
+    if keep_progress:
+        raise BadInput("--keep-progress: only a comparison (several policies, or --beyond) keeps its evaluations")
     policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
@@ -241,6 +252,8 @@ class ComparisonRun:
     address: str | None
     threads: int | None
     out_dir: Path
+    keep_progress: bool
+    """keep `saved` once the files are written (`finish`)."""
     as_json: bool
     force: bool
     command: str
@@ -255,6 +268,11 @@ class ComparisonRun:
     def saved(self) -> SavedResults:
         """Where each (policy, scenario) result is kept as it finishes, until the outputs are written."""
         return SavedResults(self.out_dir / PROGRESS_FOLDER)
+
+    def finish(self) -> None:
+        """The files are written: remove `saved`, unless the run keeps it."""
+        if not self.keep_progress:
+            self.saved.remove()
 
     def note_saved(self) -> None:
         """Say on stderr how many results an earlier, cut-off run of the command left."""
@@ -317,7 +335,7 @@ def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
             click.echo(f"{check['verdict']:<19} {check['claim']}")
     with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
         comparison.write_comparison(method_runs, staging, run.command, date)
-    run.saved.remove()
+    run.finish()
     if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
 
@@ -357,6 +375,6 @@ def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) 
             click.echo(f"{check.verdict:<19} {check.claim}")
     with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
         seed_comparison_files.write_seed_comparison(seed_runs, staging, run.command, date, stats)
-    run.saved.remove()
+    run.finish()
     if not run.as_json:
         click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")
