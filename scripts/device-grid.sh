@@ -5,7 +5,8 @@
 #
 #   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
 #
-# The committed resume points travel with the tree (checkpoints/comparison; replay buffers are
+# (the cp where the grid has committed resume points: scripts/keep-cells.py). The committed
+# resume points travel with the tree (checkpoints/comparison; replay buffers are
 # not committed, so a resumed cell refills its buffer outside the schedule first). The runtime's
 # packages that the device image lacks travel as wheels (.whl, carried; scripts/device-wheels.sh
 # says how to make them). Then the cells run as `python -m training grid RECIPE...
