@@ -23,6 +23,7 @@ from terl_rt.evaluation.paper import GOALS, PRESET_GROUPS, SMALL_RELEASED, TERL_
 from terl_rt.evaluation.figures import MatplotlibMissing
 from terl_rt.evaluation.report import (
     REPORT_SUITE,
+    comparability_note,
     goal_checks,
     group_summaries,
     render_markdown,
@@ -160,7 +161,15 @@ def test_groups_not_evaluated_and_short_runs_are_named():
     text = where_it_stands([result("small-11", episodes=2, max_steps=5), result("curriculum-2", episodes=2, max_steps=5)])
     assert "Not evaluated: medium scale, large scale and CC." in text
     assert "The paper reports nothing for curriculum-2" in text
-    assert "2 episodes a scenario and a step limit of 5" in text and "indicative only" in text
+    assert "2 episodes a scenario, fewer than the paper's 20, and a step limit of 5, not the paper's 1000" in text
+    assert "indicative only" in text
+
+
+def test_more_episodes_than_the_papers_and_scenarios_it_does_not_report_leave_the_comparison_whole():
+    assert comparability_note([result("small-11", episodes=50), result("scale-400", episodes=10)]) == ""
+    assert comparability_note([result("small-11", episodes=10)]) == (
+        "These runs used 10 episodes a scenario, fewer than the paper's 20, so the comparison is indicative only.")
+    assert "a step limit of 300, not the paper's 1000" in comparability_note([result("cc-28", max_steps=300)])
 
 
 # --- markdown -------------------------------------------------------------------------
