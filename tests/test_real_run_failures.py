@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mcap.writer import Writer
 from one_line import assert_one_error, invoke
@@ -295,6 +295,7 @@ METADATA_KEYS = ["terl.contract", "terl.model", "terl.hidden", "terl.pursuer_act
     st.binary(min_size=1, max_size=24), st.text(min_size=1, max_size=24).map(lambda text: text.encode("utf-8", "surrogatepass")),
     st.integers(1, 50_000).map(lambda depth: b"[" * depth),
 ))
+@example(key="terl.contract", value=b"\x00\n\x00")  # found by hypothesis: a line break in a quoted value
 def test_any_policy_metadata_value_loads_or_is_a_contract_error(tmp_path, key, value):
     try:
         OnnxPolicy(_policy_with_metadata(tmp_path / "any.onnx", key, value))

@@ -219,7 +219,7 @@ def check_contract_version(metadata: Mapping[str, str]) -> str:
     version = _require_metadata(metadata, META_CONTRACT).strip()
     if version != CONTRACT_VERSION:
         raise ContractError(
-            f"metadata '{META_CONTRACT}' is '{version}', this runtime reads contract "
+            f"metadata '{META_CONTRACT}' is {version[:80]!r}, this runtime reads contract "
             f"{CONTRACT_VERSION}; use a runtime for that contract or re-export the policy"
         )
     return version
@@ -239,7 +239,7 @@ def check_size(metadata: Mapping[str, str], key: str, minimum: int) -> str:
     try:
         value = int(text)
     except ValueError:
-        raise ContractError(f"metadata '{key}' is '{text}', the contract needs an integer") from None
+        raise ContractError(f"metadata '{key}' is {text[:80]!r}, the contract needs an integer") from None
     if value < minimum:
         raise ContractError(f"metadata '{key}' is {value}, the contract needs at least {minimum}")
     return str(value)
@@ -280,7 +280,7 @@ def check_training_steps(metadata: Mapping[str, str]) -> str:
     try:
         steps = int(text)
     except ValueError:
-        raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is '{text}', expected an integer") from None
+        raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is {text[:80]!r}, expected an integer") from None
     if steps < 0:
         raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is {steps}, expected >= 0")
     return str(steps)
