@@ -214,12 +214,18 @@ def _require_metadata(metadata: Mapping[str, str], key: str) -> str:
     return metadata[key]
 
 
+def _quoted(text: str) -> str:
+    """A metadata value as an error message shows it: its first 80 characters, quoted and
+    escaped (repr), so a line break or control character in it keeps the message on one line."""
+    return repr(text[:80])
+
+
 def check_contract_version(metadata: Mapping[str, str]) -> str:
     """`terl.contract` is "1"."""
     version = _require_metadata(metadata, META_CONTRACT).strip()
     if version != CONTRACT_VERSION:
         raise ContractError(
-            f"metadata '{META_CONTRACT}' is {version[:80]!r}, this runtime reads contract "
+            f"metadata '{META_CONTRACT}' is {_quoted(version)}, this runtime reads contract "
             f"{CONTRACT_VERSION}; use a runtime for that contract or re-export the policy"
         )
     return version
@@ -239,7 +245,7 @@ def check_size(metadata: Mapping[str, str], key: str, minimum: int) -> str:
     try:
         value = int(text)
     except ValueError:
-        raise ContractError(f"metadata '{key}' is {text[:80]!r}, the contract needs an integer") from None
+        raise ContractError(f"metadata '{key}' is {_quoted(text)}, the contract needs an integer") from None
     if value < minimum:
         raise ContractError(f"metadata '{key}' is {value}, the contract needs at least {minimum}")
     return str(value)
@@ -253,7 +259,7 @@ def check_action_table(metadata: Mapping[str, str]) -> str:
     except (json.JSONDecodeError, TypeError, ValueError, RecursionError):
         raise ContractError(
             f"metadata '{META_PURSUER_ACTIONS}' is not a JSON list of "
-            f"{NUM_PURSUER_ACTIONS} [acceleration, yaw rate] pairs: {text[:80]!r}"
+            f"{NUM_PURSUER_ACTIONS} [acceleration, yaw rate] pairs: {_quoted(text)}"
         ) from None
     if table.shape != PURSUER_ACTIONS.shape:
         raise ContractError(
@@ -280,7 +286,7 @@ def check_training_steps(metadata: Mapping[str, str]) -> str:
     try:
         steps = int(text)
     except ValueError:
-        raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is {text[:80]!r}, expected an integer") from None
+        raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is {_quoted(text)}, expected an integer") from None
     if steps < 0:
         raise ContractWarning(f"metadata '{META_TRAINING_STEPS}' is {steps}, expected >= 0")
     return str(steps)
