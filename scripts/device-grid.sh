@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # The prepared device-machine command (docs/training.md, "On a device machine"): one call of under
-# 9 minutes that trains grid cells on every core, one process a cell, and brings back each
-# method's resume points in $OUT. From the repository root, on the device machine:
+# 9 minutes that trains grid cells with their learners on the GPU, the seeds of a method trained
+# together in one process (SEEDS_PER_PROCESS, default 3: one batched update on the GPU serves
+# them all; rollouts on the CPU cores, one process a stack), and brings back each method's resume
+# points in $OUT. From the repository root, on the device machine:
 #
+#   scripts/device-grid.sh 8 recipes/terl-authors.toml --seeds 1-3
 #   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
 #
 # (the cp where the grid has committed resume points: scripts/keep-cells.py). The committed
@@ -26,15 +29,19 @@ source scripts/device-wheels.sh
 mkdir -p "$grid_out"
 started=$(mktemp)
 status=0
-python3 -m training grid "$@" --out "$grid_out" --processes "${PROCESSES:-$(nproc)}" --stop-after "$minutes" || status=$?
+python3 -m training grid "$@" --out "$grid_out" --processes "${PROCESSES:-$(nproc)}" --stop-after "$minutes" \
+    --seeds-per-process "${SEEDS_PER_PROCESS:-3}" --device "${DEVICE:-cuda}" || status=$?
 for folder in "$grid_out"/*/; do
     method=$(basename "$folder")
     cells=()
-    for log in "$folder"seed-*.log; do
+    for log in "$folder"seed-*.log "$folder"seeds-*.log; do  # a cell's log, or a stack's (seeds-1-2-3.log)
         if [ -e "$log" ] && [ "$log" -nt "$started" ]; then
             cells+=("$method/$(basename "$log")")
-            cell="$method/$(basename "$log" .log)"
-            if [ -d "$grid_out/$cell" ]; then cells+=("$cell"); fi
+            name=$(basename "$log" .log)
+            name=${name#seeds-}
+            for seed in $(echo "${name#seed-}" | tr '-' ' '); do
+                if [ -d "$grid_out/$method/seed-$seed" ]; then cells+=("$method/seed-$seed"); fi
+            done
         fi
     done
     if [ ${#cells[@]} -gt 0 ]; then

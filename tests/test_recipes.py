@@ -88,8 +88,8 @@ def test_a_segment_with_a_checkpoint_short_of_its_end_resumes_from_it(tmp_path):
     first, second = (segment_folder(tmp_path, k, s) for k, s in enumerate(recipe.segments, 1))
     calls = []
 
-    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
-        calls.append((config.schedule.total_steps, Path(out_dir), resume, load_replay))
+    def stand_in(config, runs, show_progress=True, load_replay=True):
+        calls.append((config.schedule.total_steps, runs[0].out_dir, runs[0].resume, load_replay))
         raise KeyboardInterrupt  # cut off
 
     for folder, step in ((first, 160), (second, 200)):  # the first finished, the second cut off at 200
@@ -104,7 +104,7 @@ def test_a_runs_seed_replaces_every_segments_seed(tmp_path):
     recipe = load_recipe(TINY)
     seeds = []
 
-    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
+    def stand_in(config, runs, show_progress=True, load_replay=True):
         seeds.append(config.run.seed)
         raise KeyboardInterrupt
 
@@ -124,8 +124,8 @@ def test_a_later_segment_starts_from_the_previous_ones_best_when_told(tmp_path):
     recipe = load_recipe(recipe_file)
     calls = []
 
-    def stand_in(config, out_dir, resume=None, show_progress=True, load_replay=True):
-        calls.append((Path(out_dir).name, resume))
+    def stand_in(config, runs, show_progress=True, load_replay=True):
+        calls.append((runs[0].out_dir.name, runs[0].resume))
         raise KeyboardInterrupt
 
     first = segment_folder(tmp_path / "out", 1, recipe.segments[0])

@@ -23,11 +23,10 @@ from training.config import Config, ConfigError
 from training.stops import TrainingStopped
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.buffer import ReplayBuffer
+from training.learner import Learner
 from training.train import (
     METRICS_FILE,
-    build_learner,
     epsilon_greedy,
-    learn,
     recent_means,
     train,
     training_scenarios,
@@ -248,9 +247,8 @@ def test_network_overfits_a_tiny_fixed_batch():
         store.add(rows, states, actions, observation, result, rng)
     batch = buffer.sample(32, rng)
     config = tiny_config(learning_rate=1e-3, max_grad_norm=10.0)
-    torch.manual_seed(0)
-    model, target, optimizer = build_learner(config.network, config.learner)  # the target is never synced here
-    losses = [learn(model, target, optimizer, batch, config.learner) for _ in range(200)]
+    learner = Learner(config.network, config.learner, [0])  # the target is never synced here
+    losses = [learner.update([batch]).item() for _ in range(200)]
     assert np.mean(losses[-10:]) < 0.2 * np.mean(losses[:10])
 
 
@@ -385,6 +383,9 @@ def test_train_refuses_to_overwrite_a_checkpoint(tmp_path, capsys):
 def test_bench_prints_rollout_and_update_rates(tmp_path, capsys):
     config_file = tmp_path / "tiny.json"
     tiny_config().to_file(config_file)
-    assert main(["bench", "--config", str(config_file), "--seconds", "0.05"]) == 0
+    assert main(["bench", "--config", str(config_file), "--seconds", "0.05", "--stacks", "1,2"]) == 0
     printed = capsys.readouterr().out
-    assert "curriculum-5" in printed and "updates/s at batch 128" in printed and "estimated wall clock" in printed
+    assert "curriculum-5" in printed and "updates at batch" in printed and "2 seeds" in printed and "h a seed" in printed
+    assert main(["bench", "--config", str(config_file), "--seconds", "0.05", "--stacks", "2", "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert [speed["seeds"] for speed in figures["updates"]] == [1, 2] and figures["matmul_gflops"] > 0

@@ -75,29 +75,38 @@ def network_from_config(network: NetworkConfig) -> QNetwork:
     return model
 
 
-def seed_generators(seed: int, rng: np.random.Generator) -> None:
-    """Seed Python's `random`, `rng` (as `np.random.default_rng(seed)` would be) and torch's generators."""
-    random.seed(seed)
-    rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
-    torch.manual_seed(seed)
-
-
-def rng_states(rng: np.random.Generator) -> dict[str, Any]:
-    """JSON-serialisable RNG states: Python `random`, the run's NumPy generator, torch CPU."""
+def rng_states(rng: np.random.Generator, torch_generator: torch.Generator) -> dict[str, Any]:
+    """JSON-serialisable RNG states: Python `random`, a seed's NumPy generator and its torch CPU
+    generator (its quantile fractions: training.learner.Learner.generators)."""
     version, internal, gauss = random.getstate()
     return {
         "python": [version, list(internal), gauss],
         "numpy": rng.bit_generator.state,
-        "torch": torch.get_rng_state().tolist(),
+        "torch": torch_generator.get_state().tolist(),
     }
 
 
-def restore_rng_states(states: dict[str, Any], rng: np.random.Generator) -> None:
-    """Inverse of `rng_states`: set Python's, `rng`'s and torch's generators."""
+def restore_rng_states(states: dict[str, Any], rng: np.random.Generator, torch_generator: torch.Generator) -> None:
+    """Inverse of `rng_states`: set Python's generator, `rng` and `torch_generator`."""
     version, internal, gauss = states["python"]
     random.setstate((version, tuple(internal), gauss))
     rng.bit_generator.state = states["numpy"]
-    torch.set_rng_state(torch.tensor(states["torch"], dtype=torch.uint8))
+    torch_generator.set_state(torch.tensor(states["torch"], dtype=torch.uint8))
+
+
+@dataclass
+class TrainingState:
+    """What a checkpoint holds besides its config: one seed's learner and generators, as state dicts."""
+
+    online: dict[str, torch.Tensor]
+    """the online network's state dict."""
+    target: dict[str, torch.Tensor]
+    """the target network's state dict."""
+    optimizer: dict[str, Any]
+    """a plain torch.optim.Adam's state dict over the online network's parameters."""
+    counters: Counters
+    rng: dict[str, Any]
+    """`rng_states`."""
 
 
 def _replace_file(path: Path, write) -> None:
@@ -106,23 +115,15 @@ def _replace_file(path: Path, write) -> None:
         write(temporary)
 
 
-def save_checkpoint(
-    folder: str | Path,
-    config: Config,
-    model: QNetwork,
-    target: QNetwork,
-    optimizer: torch.optim.Optimizer,
-    counters: Counters,
-    rng: np.random.Generator,
-) -> Path:
+def save_checkpoint(folder: str | Path, config: Config, state: TrainingState) -> Path:
     """Write the checkpoint files into `folder` (created if needed) and return it."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _write_weights(folder / MODEL_FILE, model, config, counters)
-    _write_weights(folder / TARGET_FILE, target, config, counters)
-    _replace_file(folder / OPTIMIZER_FILE, lambda path: torch.save(optimizer.state_dict(), path))
+    _write_weights(folder / MODEL_FILE, state.online, config, state.counters)
+    _write_weights(folder / TARGET_FILE, state.target, config, state.counters)
+    _replace_file(folder / OPTIMIZER_FILE, lambda path: torch.save(state.optimizer, path))
     _replace_file(folder / CONFIG_FILE, config.to_file)
-    _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(counters), "rng": rng_states(rng)})
+    _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(state.counters), "rng": state.rng})
     return folder
 
 
@@ -131,15 +132,15 @@ def save_snapshot(folder: str | Path, config: Config, model: QNetwork, counters:
     state.json of counters): enough to export or evaluate it, not to resume training."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _write_weights(folder / MODEL_FILE, model, config, counters)
+    _write_weights(folder / MODEL_FILE, model.state_dict(), config, counters)
     _replace_file(folder / CONFIG_FILE, config.to_file)
     _write_state(folder, {"format": FORMAT_VERSION, "counters": asdict(counters)})
     return folder
 
 
-def _write_weights(path: Path, network: QNetwork, config: Config, counters: Counters) -> None:
+def _write_weights(path: Path, weights: dict[str, torch.Tensor], config: Config, counters: Counters) -> None:
     metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
-    state = {key: value.detach().cpu().contiguous() for key, value in network.state_dict().items()}
+    state = {key: value.detach().cpu().contiguous() for key, value in weights.items()}
     _replace_file(path, lambda temporary: save_file(state, str(temporary), metadata=metadata))
 
 
@@ -176,14 +177,8 @@ def _read_state(folder: Path) -> dict[str, Any]:
     return state
 
 
-def load_checkpoint(
-    source: str | Path,
-    model: QNetwork,
-    target: QNetwork,
-    optimizer: torch.optim.Optimizer,
-    rng: np.random.Generator,
-) -> Counters:
-    """Load weights, optimizer state and RNG states saved by `save_checkpoint`; return the counters."""
+def load_checkpoint(source: str | Path) -> TrainingState:
+    """The learner state, counters and RNG states saved by `save_checkpoint`."""
     folder = _checkpoint_folder(source)
     state = _read_state(folder)
     if "rng" not in state:
@@ -191,11 +186,13 @@ def load_checkpoint(
             f"{folder}: a snapshot of the online network alone (no target network, optimizer or RNG "
             "states), which can be exported or evaluated but not resumed; resume from its run folder or best/"
         )
-    model.load_state_dict(load_file(str(folder / MODEL_FILE)))
-    target.load_state_dict(load_file(str(folder / TARGET_FILE)))
-    optimizer.load_state_dict(torch.load(folder / OPTIMIZER_FILE, weights_only=True))
-    restore_rng_states(state["rng"], rng)
-    return Counters(**state["counters"])
+    return TrainingState(
+        online=load_file(str(folder / MODEL_FILE)),
+        target=load_file(str(folder / TARGET_FILE)),
+        optimizer=torch.load(folder / OPTIMIZER_FILE, weights_only=True),
+        counters=Counters(**state["counters"]),
+        rng=state["rng"],
+    )
 
 
 def load_network(source: str | Path) -> tuple[QNetwork, Config, Counters]:

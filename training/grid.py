@@ -1,6 +1,8 @@
 """A method x seed grid of recipes, each cell a run of its own: `python -m training run RECIPE
 --out OUT/<method>/seed-<S> --seed S --threads 1` in a process of its own, on this machine or
-as a Ray task (training.grid_ray), its output in OUT/<method>/seed-<S>.log.
+as a Ray task (training.grid_ray), its output in OUT/<method>/seed-<S>.log. With seeds trained
+together (`stack_cells`), a process trains several seeds of a method (`run --seeds`), each in its
+own cell folder, its output in OUT/<method>/seeds-<S>-<S>....log.
 
 A method is a recipe's file stem (recipes/comparison/iqn.toml: iqn). A cell is resumable as
 its recipe is: the grid run again skips the cells that have finished and starts the others,
@@ -45,6 +47,8 @@ class Cell:
     """the recipe file."""
     out: Path
     """the run's folder: GRID_OUT/<method>/seed-<seed>."""
+    device: str | None = None
+    """torch device of the run's updates (`run --device`; None: the recipe's)."""
 
     @property
     def name(self) -> str:
@@ -58,7 +62,67 @@ class Cell:
 
     def arguments(self) -> list[str]:
         """The arguments of `python -m training run` (after RUN_PROGRAM) that make this cell."""
-        return [str(self.recipe), "--out", str(self.out), "--seed", str(self.seed), "--threads", "1", "--quiet"]
+        device = [] if self.device is None else ["--device", self.device]
+        return [str(self.recipe), "--out", str(self.out), "--seed", str(self.seed), "--threads", "1", "--quiet", *device]
+
+    def finished(self, recipe: Recipe) -> bool:
+        """Whether the cell's run has ended and its policy is exported."""
+        return recipe_finished(recipe, self.out)
+
+
+@dataclass(frozen=True)
+class CellStack:
+    """Seeds of one method trained together in one process (`python -m training run --seeds`):
+    each seed's run in its own cell folder, as a cell of its own would lay it out."""
+
+    cells: tuple[Cell, ...]
+    """the seeds' cells, one method, in seed order."""
+
+    @property
+    def method(self) -> str:
+        return self.cells[0].method
+
+    @property
+    def name(self) -> str:
+        """The stack as progress lines name it: "iqn seeds 1,2,3"."""
+        return f"{self.method} seeds {','.join(str(cell.seed) for cell in self.cells)}"
+
+    @property
+    def log(self) -> Path:
+        """The stack's stdout and stderr: GRID_OUT/<method>/seeds-<S>-<S>....log."""
+        return self.cells[0].out.with_name(f"seeds-{'-'.join(str(cell.seed) for cell in self.cells)}.log")
+
+    def arguments(self) -> list[str]:
+        """The arguments of `python -m training run` (after RUN_PROGRAM) that train the stack: its
+        seeds land in GRID_OUT/<method>/seed-<S>, the cells' own folders."""
+        seeds = ",".join(str(cell.seed) for cell in self.cells)
+        device = [] if self.cells[0].device is None else ["--device", self.cells[0].device]
+        return [str(self.cells[0].recipe), "--out", str(self.cells[0].out.parent), "--seeds", seeds, "--threads", "1",
+                "--quiet", *device]
+
+    def finished(self, recipe: Recipe) -> bool:
+        """Whether every seed of the stack has ended and exported its policy."""
+        return all(cell.finished(recipe) for cell in self.cells)
+
+
+def stack_cells(cells: Sequence[tuple[Cell, Recipe]], seeds_per_process: int) -> list[tuple[Cell | CellStack, Recipe]]:
+    """The grid's cells to run, `seeds_per_process` seeds of a method a process (1: every cell
+    alone): each method's unfinished cells in seed order, in stacks of at most that many (the
+    finished cells stay as they are)."""
+    if seeds_per_process == 1:
+        return list(cells)
+    by_method: dict[str, list[tuple[Cell, Recipe]]] = {}
+    stacks: list[tuple[Cell | CellStack, Recipe]] = []
+    for cell, recipe in cells:
+        if cell.finished(recipe):
+            stacks.append((cell, recipe))  # run_grid reports it finished
+        else:
+            by_method.setdefault(cell.method, []).append((cell, recipe))
+    for method_cells in by_method.values():
+        for start in range(0, len(method_cells), seeds_per_process):
+            chunk = method_cells[start : start + seeds_per_process]
+            stacks.append((CellStack(tuple(cell for cell, _ in chunk)), chunk[0][1]))
+    return stacks
 
 
 def method_name(recipe: Path) -> str:
@@ -67,11 +131,12 @@ def method_name(recipe: Path) -> str:
 
 
 def plan_grid(
-    recipes: Sequence[Path], seeds: Sequence[int], out: Path, found_seeds: bool = False,
+    recipes: Sequence[Path], seeds: Sequence[int], out: Path, found_seeds: bool = False, device: str | None = None,
 ) -> list[tuple[Cell, Recipe]]:
     """Every cell of the grid with its recipe, seed by seed (every method's first seed first, so
     a grid cut short holds whole seeds of the comparison). `found_seeds`: each method also with
-    the seeds its folder already holds (OUT/<method>/seed-<S>), as its card lists them. Every
+    the seeds its folder already holds (OUT/<method>/seed-<S>), as its card lists them. `device`:
+    where the cells' updates run (None: the recipes'). Every
     recipe is read first: RecipeError names a bad one, or two recipes with one method name,
     before anything runs."""
     methods: dict[str, Path] = {}
@@ -84,7 +149,7 @@ def plan_grid(
     loaded = {method: load_recipe(path) for method, path in methods.items()}
     every = {method: set(seeds) | (seeds_in(out / method) if found_seeds else set()) for method in methods}
     return [
-        (Cell(method, seed, path, out / method / f"seed-{seed}"), loaded[method])
+        (Cell(method, seed, path, out / method / f"seed-{seed}", device), loaded[method])
         for seed in sorted(set().union(*every.values())) for method, path in methods.items() if seed in every[method]
     ]
 
@@ -100,8 +165,8 @@ def seeds_in(folder: Path) -> set[int]:
 class CellRunner(Protocol):
     """Where cells run (LocalProcesses here, training.grid_ray.RayCells on a Ray cluster)."""
 
-    def start(self, cell: Cell) -> Any:
-        """Start the cell's run, its output appended to cell.log; returns a handle."""
+    def start(self, cell: Cell | CellStack) -> Any:
+        """Start the cell's (or stack's) run, its output appended to cell.log; returns a handle."""
 
     def poll(self, handle: Any) -> int | None:
         """The run's exit status once it has ended (STOPPED: stopped with a checkpoint), else None."""
@@ -120,7 +185,7 @@ class LocalProcesses:
     def __init__(self, program: Sequence[str] = RUN_PROGRAM) -> None:
         self.program = list(program)
 
-    def start(self, cell: Cell) -> subprocess.Popen:
+    def start(self, cell: Cell | CellStack) -> subprocess.Popen:
         cell.log.parent.mkdir(parents=True, exist_ok=True)
         with open(cell.log, "ab") as log:
             return subprocess.Popen(
@@ -174,10 +239,11 @@ def last_line(path: Path, limit: int = 300) -> str:
 
 
 def run_grid(
-    cells: Sequence[tuple[Cell, Recipe]], runner: CellRunner, at_once: int, note: Callable[[str], None],
+    cells: Sequence[tuple[Cell | CellStack, Recipe]], runner: CellRunner, at_once: int, note: Callable[[str], None],
     stop_after_s: float | None = None,
 ) -> GridOutcome:
-    """Run every cell not finished yet, at most `at_once` together, until each has ended.
+    """Run every cell (or stack of cells: `stack_cells`) not finished yet, at most `at_once`
+    together, until each has ended.
 
     `note` gets a line for each cell that starts or ends, with the counts so far; a failed cell's
     line starts with "Error:" and names its log. SIGINT and SIGTERM (in the main thread) stop
@@ -186,24 +252,24 @@ def run_grid(
     """
     deadline = None if stop_after_s is None else time.monotonic() + stop_after_s
     outcome = GridOutcome([], [], [], [])
-    waiting: list[Cell] = []
+    waiting: list[Cell | CellStack] = []
     for cell, recipe in cells:
-        if recipe_finished(recipe, cell.out):
+        if cell.finished(recipe):
             outcome.finished.append(cell.name)
         else:
             waiting.append(cell)
     if outcome.finished:
         note(f"{len(outcome.finished)} of {len(cells)} cells finished before this run: {', '.join(outcome.finished)}")
-    running: dict[Cell, Any] = {}
+    running: dict[Cell | CellStack, Any] = {}
     signals: list[str] = []
 
     def counts() -> str:
         return (f"[{len(outcome.finished) + len(outcome.done)} done, {len(running)} running, "
                 f"{len(outcome.failed)} failed, {len(waiting)} waiting]")
 
-    asked: dict[Cell, int] = {}  # signals passed on to each running cell
+    asked: dict[Cell | CellStack, int] = {}  # signals passed on to each running cell
 
-    def pass_on(cell: Cell) -> None:
+    def pass_on(cell: Cell | CellStack) -> None:
         while asked.get(cell, 0) < len(signals):
             runner.stop(running[cell])
             asked[cell] = asked.get(cell, 0) + 1

@@ -19,7 +19,7 @@ import ray
 from ray.exceptions import RayError, TaskCancelledError
 
 from terl_rt.evaluation.ray_backend import connect
-from training.grid import RUN_PROGRAM, STOPPED, Cell
+from training.grid import RUN_PROGRAM, STOPPED, Cell, CellStack
 
 FAILED = 1
 """The exit status given to a cell whose task Ray lost (its worker or node died)."""
@@ -41,7 +41,7 @@ def run_cell(program: Sequence[str], arguments: Sequence[str], log: str, cwd: st
 
 
 class RayCells:
-    """Cells as Ray tasks of `threads` CPUs each (training.grid.CellRunner)."""
+    """Cells (or stacks of seeds trained together, one a task) as Ray tasks of `threads` CPUs each (training.grid.CellRunner)."""
 
     def __init__(self, address: str | None, cpus: int | None = None, threads: int = 1,
                  program: Sequence[str] = RUN_PROGRAM) -> None:
@@ -53,7 +53,7 @@ class RayCells:
         self.program = list(program)
         self._task = ray.remote(run_cell).options(num_cpus=threads, max_retries=0)
 
-    def start(self, cell: Cell) -> ray.ObjectRef:
+    def start(self, cell: Cell | CellStack) -> ray.ObjectRef:
         cell.log.parent.mkdir(parents=True, exist_ok=True)
         return self._task.remote(self.program, cell.arguments(), str(cell.log.resolve()), os.getcwd())
 

@@ -61,16 +61,23 @@ def quantile_td_target(
     return rewards[:, None] + discounts[:, None] * (1.0 - dones[:, None]) * chosen
 
 
-def quantile_huber_loss(
+def quantile_huber_rows(
     quantiles: torch.Tensor, taus: torch.Tensor, targets: torch.Tensor, kappa: float = 1.0
 ) -> torch.Tensor:
-    """Quantile Huber loss of IQN (Dabney et al. 2018, eq. 3), a scalar.
+    """Quantile Huber loss of IQN (Dabney et al. 2018, eq. 3) of each row: [R].
 
     quantiles [R, N] of the taken actions at fractions taus [R, N]; targets [R, N'].
     With u_ij = target_j - quantile_i: rho_ij = |tau_i - 1{u_ij < 0}| * Huber_kappa(u_ij) / kappa,
-    summed over i, averaged over j and over the rows.
+    summed over i and averaged over j.
     """
     errors = targets[:, None, :] - quantiles[:, :, None]  # [R, N, N']
     weight = (taus[:, :, None] - (errors.detach() < 0).to(errors.dtype)).abs()
     rho = weight * huber(errors, kappa) / kappa
-    return rho.mean(dim=2).sum(dim=1).mean()
+    return rho.mean(dim=2).sum(dim=1)
+
+
+def quantile_huber_loss(
+    quantiles: torch.Tensor, taus: torch.Tensor, targets: torch.Tensor, kappa: float = 1.0
+) -> torch.Tensor:
+    """`quantile_huber_rows` averaged over the rows, a scalar."""
+    return quantile_huber_rows(quantiles, taus, targets, kappa).mean()

@@ -46,12 +46,13 @@ import dataclasses
 import hashlib
 import shutil
 import sys
+from contextlib import ExitStack
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # Python 3.10: the same parser, from PyPI (the train extra installs it there)
     import tomli as tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,7 +60,7 @@ from typing import Any
 from training.checkpoint import STATE_FILE, export_checkpoint, read_counters
 from training.config import SECTIONS, Config, ConfigError, read_fields
 from training.run_lock import holding_run_folder
-from training.train import BEST_FOLDER
+from training.train import BEST_FOLDER, SeedRun
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
 """The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""
@@ -232,51 +233,93 @@ def shipped_checkpoint(recipe: Recipe, out: Path) -> Path:
     raise FileNotFoundError(f"{out}: no best/ snapshot of step {best_step} in any segment folder")
 
 
-Train = Callable[..., Any]
-"""training.train.train, or a stand-in with its signature (config, out_dir, resume=None,
-show_progress=True, load_replay=True)."""
+TrainSeeds = Callable[..., dict[int, Any]]
+"""training.train.train_seeds, or a stand-in with its signature (config, runs, show_progress=True,
+load_replay=True) -> {seed: counters} of the seeds that finished."""
+
+
+def seed_folders(out: Path, seeds: Sequence[int] | None, seed: int | None, recipe: Recipe) -> dict[int, Path]:
+    """Where each seed of a run trains: OUT itself for one seed (`seed`, else the recipe's), or
+    OUT/seed-<S> for each of `seeds` (seeds trained together)."""
+    if seeds is None:
+        return {seed if seed is not None else recipe.segments[0].config.run.seed: out}
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise RecipeError(f"the seeds {list(seeds)} must be one or more, none repeated")
+    return {number: out / f"seed-{number}" for number in seeds}
 
 
 def run_recipe(
-    recipe: Recipe, out: str | Path, train: Train, threads: int | None = None, seed: int | None = None,
-    show_progress: bool = True, note: Callable[[str], None] = print,
-) -> Path:
+    recipe: Recipe, out: str | Path, train: TrainSeeds, threads: int | None = None, seed: int | None = None,
+    seeds: Sequence[int] | None = None, device: str | None = None, segments: int | None = None, show_progress: bool = True,
+    note: Callable[[str], None] = print,
+) -> list[Path]:
     """Train every segment of `recipe` not yet finished under `out`, then export the policy it
-    ships; returns the .onnx path (OUT/<stem of ships>.onnx).
+    ships; returns the .onnx paths (OUT/<stem of ships>.onnx, or with `seeds`
+    OUT/seed-<S>/<stem of ships>.onnx, one a seed that finished).
 
     A segment with a checkpoint but short of its end is resumed from it; one without is started
     (its folder emptied first, so its metrics.jsonl holds one run), from nothing or from the
     previous segment's `start` checkpoint. `threads` replaces every segment's run.threads (torch
-    threads are set by the caller from the returned configs: see `python -m training run`);
+    threads are set by the caller from the returned configs: see `python -m training run`), and
+    `device` every segment's learner.device;
     `seed` replaces every segment's run.seed (a later segment continues the generators of the one
-    before it, so the seed acts where the first starts). The run holds `out` throughout
-    (training.run_lock): another run on it raises RunFolderHeld before anything is written.
+    before it, so the seed acts where the first starts). `seeds` trains several seeds together,
+    each in OUT/seed-<S> as a one-seed run lays out OUT; a seed that fails stops alone and
+    RecipeError names it once the others are done. `segments` trains the first so many segments
+    only (nothing is exported unless they are all of them). The run holds each seed's folder
+    throughout (training.run_lock): another run on one raises RunFolderHeld before anything is written.
     """
     out = Path(out)
-    overrides = {name: value for name, value in (("threads", threads), ("seed", seed)) if value is not None}
-    with holding_run_folder(out):
-        train_segments(recipe, out, train, overrides, show_progress, note)
-        return export_checkpoint(shipped_checkpoint(recipe, out), out / Path(recipe.ships).name)
+    folders = seed_folders(out, seeds, seed, recipe)
+    overrides = {name: value for name, value in (("threads", threads), ("device", device)) if value is not None}
+    chosen = recipe.segments[:segments] if segments else recipe.segments
+    with ExitStack() as held:
+        for folder in folders.values():  # each seed's folder, so stacks of other seeds of a grid may share OUT
+            held.enter_context(holding_run_folder(folder))
+        done = train_segments(recipe, chosen, folders, train, overrides, show_progress, note)
+        failed = sorted(set(folders) - set(done))
+        shipped = [] if len(chosen) < len(recipe.segments) else [
+            export_checkpoint(shipped_checkpoint(recipe, folders[number]), folders[number] / Path(recipe.ships).name)
+            for number in done
+        ]
+    if failed:
+        raise RecipeError(f"seed{'s' if len(failed) > 1 else ''} {', '.join(map(str, failed))} failed (a non-finite "
+                          f"loss; the run's output says when); their last checkpoints stay")
+    return shipped
 
 
-def train_segments(recipe: Recipe, out: Path, train: Train, overrides: dict[str, int], show_progress: bool,
-                   note: Callable[[str], None]) -> None:
-    """`run_recipe`'s training: each segment finished, resumed or started in turn, with the run
-    fields `overrides` (threads, seed) replaced in every segment's config."""
-    previous: Path | None = None
-    for index, segment in enumerate(recipe.segments, start=1):
-        folder = segment_folder(out, index, segment)
+def train_segments(recipe: Recipe, segments: Sequence[Segment], folders: dict[int, Path], train: TrainSeeds,
+                   overrides: dict[str, int], show_progress: bool, note: Callable[[str], None]) -> list[int]:
+    """`run_recipe`'s training: each segment finished, resumed or started in turn for every seed
+    (folders: seed -> its run folder), with the run fields `overrides` replaced in every segment's
+    config. Seeds that continue from one environment step train together; returns the seeds that
+    finished every segment."""
+    alive = list(folders)
+    for index, segment in enumerate(segments, start=1):
         config = segment.config.replace(**overrides)
         label = f"segment {index}/{len(recipe.segments)} ({segment.name}, to {config.schedule.total_steps:,} steps)"
-        if finished(folder, segment):
-            note(f"{label}: finished, in {folder}")
-        elif (folder / STATE_FILE).is_file():
-            note(f"{label}: resuming its checkpoint in {folder}")
-            train(config, folder, resume=folder, show_progress=show_progress)
-        else:
-            if folder.exists():
-                shutil.rmtree(folder)
-            source = None if previous is None else (previous / BEST_FOLDER if segment.start == "best" else previous)
-            note(f"{label}: starting" + ("" if source is None else f" from {source}"))
-            train(config, folder, resume=source, show_progress=show_progress, load_replay=not segment.refill)
-        previous = folder
+        groups: dict[tuple[int, bool], list[SeedRun]] = {}
+        for number in alive:
+            folder = segment_folder(folders[number], index, segment)
+            named = label if len(folders) == 1 else f"seed {number}, {label}"
+            if finished(folder, segment):
+                note(f"{named}: finished, in {folder}")
+                continue
+            if (folder / STATE_FILE).is_file():
+                note(f"{named}: resuming its checkpoint in {folder}")
+                source, load_replay = folder, True
+            else:
+                if folder.exists():
+                    shutil.rmtree(folder)
+                previous = segment_folder(folders[number], index - 1, recipe.segments[index - 2]) if index > 1 else None
+                source = None if previous is None else (previous / BEST_FOLDER if segment.start == "best" else previous)
+                note(f"{named}: starting" + ("" if source is None else f" from {source}"))
+                load_replay = not segment.refill
+            # seeds that continue from one step train together (a missing checkpoint is train's to name)
+            step = read_counters(source).env_step if source is not None and (source / STATE_FILE).is_file() else 0
+            groups.setdefault((step, load_replay), []).append(SeedRun(number, folder, source))
+        for (_, load_replay), runs in groups.items():
+            seed_config = config if len(folders) > 1 else config.replace(seed=runs[0].seed)
+            finished_seeds = train(seed_config, runs, show_progress=show_progress, load_replay=load_replay)
+            alive = [number for number in alive if number in finished_seeds or number not in {run.seed for run in runs}]
+    return alive

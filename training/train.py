@@ -43,11 +43,11 @@ training/throughput.py times the loop's two halves (rollout, update) apart.
 
 from __future__ import annotations
 
-import copy
 import json
 import sys
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -61,15 +61,16 @@ from terl_rt.sim.reward import REWARD_TERMS, taught_reward
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario, curriculum_stage
 from terl_rt.sim.world import StepResult, World
-from training.buffer import ReplayBatch, ReplayBuffer, pad_evader_slots, trim_padding
+from training.buffer import ReplayBuffer, pad_evader_slots, trim_padding
 from training.checkpoint import (
-    Counters, load_checkpoint, network_from_config, read_config, save_checkpoint, save_snapshot, seed_generators,
+    Counters, TrainingState, load_checkpoint, read_config, restore_rng_states, rng_states, save_checkpoint,
+    save_snapshot,
 )
 from training.config import (
-    RETURN_FIELDS, SNAPSHOT_FIELDS, Config, DataConfig, LearnerConfig, NetworkConfig, RunConfig,
-    ScheduleConfig, changed_fields,
+    RETURN_FIELDS, SNAPSHOT_FIELDS, Config, DataConfig, LearnerConfig, RunConfig, ScheduleConfig, changed_fields,
 )
-from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
+from training.learner import Learner
+from training.losses import linear_schedule
 from training.networks import QNetwork
 from training.stops import StopRequests, TrainingStopped
 from training.torch_policy import TorchPolicy, as_tensors, network_device
@@ -238,53 +239,6 @@ def subsample_per_group(groups: np.ndarray, limit: int, rng: np.random.Generator
 
 
 # ---------------------------------------------------------------- learning
-def td_loss(model: QNetwork, target: QNetwork, batch: ReplayBatch, learner: LearnerConfig, trim: bool = True) -> torch.Tensor:
-    """Quantile Huber loss (IQN heads) or Huber TD loss (`dqn`) of a sampled batch, a scalar.
-
-    The online network runs as it is (train mode: dropout on); the target network,
-    in eval mode, gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its own
-    argmax of the mean, or with `learner.double_dqn` the online network's argmax.
-    `trim` cuts the slots empty in every row of the batch first (`trim_padding`: the same
-    loss to float round-off, in less time); `learner.bf16` runs the networks under bfloat16
-    autocast, their heads' output layers and the loss in float32.
-    """
-    device = network_device(model)
-    observations, next_observations = batch.observations, batch.next_observations
-    if trim:
-        observations, next_observations = trim_padding(observations), trim_padding(next_observations)
-    states, next_states = as_tensors(observations, device), as_tensors(next_observations, device)
-    actions = torch.from_numpy(batch.actions).to(device)
-    rewards, dones = torch.from_numpy(batch.rewards).to(device), torch.from_numpy(batch.dones).to(device)
-    discounts = torch.from_numpy(batch.discounts).to(device)
-    rows = len(actions)
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=learner.bf16):
-        if model.distributional:
-            taus = torch.rand(rows, learner.num_quantiles, device=device)
-            quantiles = model(*states, taus).quantiles  # [R, N, A]
-            index = actions[:, None, None].expand(-1, learner.num_quantiles, 1)
-            taken = quantiles.gather(2, index).squeeze(2)  # [R, N]
-            with torch.no_grad():
-                next_taus = torch.rand(rows, learner.num_target_quantiles, device=device)
-                next_quantiles = target(*next_states, next_taus).quantiles
-                best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if learner.double_dqn else None
-                targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
-            return quantile_huber_loss(taken, taus, targets)
-        q_values = model(*states).quantiles[:, 0]  # [R, A]
-        taken = q_values.gather(1, actions[:, None]).squeeze(1)
-        with torch.no_grad():
-            best = model(*next_states).quantiles[:, 0].argmax(dim=1) if learner.double_dqn else None
-            targets = td_target(rewards, dones, target(*next_states).quantiles[:, 0], discounts, best)
-        return huber(taken - targets).mean()
-
-
-def acting_network(model: QNetwork, actor_update_frequency: int) -> QNetwork:
-    """The network that acts in training: `model` itself, or with `actor_update_frequency`
-    (LearnerConfig) a copy of it (eval mode, no gradients) that the loop refreshes every so many steps."""
-    if not actor_update_frequency:
-        return model
-    return copy.deepcopy(model).eval().requires_grad_(False)  # draws no random numbers
-
-
 def learning_rate_at(learner: LearnerConfig, total_steps: int, env_step: int) -> float:
     """Adam's step size at `env_step`: `learning_rate`, or with `final_learning_rate` its linear
     fall from `decay_start` to `total_steps`."""
@@ -294,34 +248,6 @@ def learning_rate_at(learner: LearnerConfig, total_steps: int, env_step: int) ->
         learner.learning_rate, learner.final_learning_rate,
         total_steps - learner.decay_start, env_step - learner.decay_start,
     )
-
-
-def build_learner(network: NetworkConfig, learner: LearnerConfig) -> tuple[QNetwork, QNetwork, torch.optim.Optimizer]:
-    """A fresh online network, its frozen eval-mode target copy and Adam on the online weights."""
-    model = network_from_config(network).to(learner.device)
-    target = network_from_config(network).to(learner.device)
-    target.load_state_dict(model.state_dict())
-    target.eval().requires_grad_(False)
-    return model, target, torch.optim.Adam(model.parameters(), lr=learner.learning_rate)
-
-
-def learn(
-    model: QNetwork,
-    target: QNetwork,
-    optimizer: torch.optim.Optimizer,
-    batch: ReplayBatch,
-    learner: LearnerConfig,
-    trim: bool = True,
-) -> float:
-    """One Adam step on `td_loss` (its padding trimmed unless `trim` is false) with the gradient
-    norm clipped; returns the loss."""
-    model.train()
-    loss = td_loss(model, target, batch, learner, trim)
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    torch.nn.utils.clip_grad_norm_(model.parameters(), learner.max_grad_norm)
-    optimizer.step()
-    return loss.item()
 
 
 # ---------------------------------------------------------------- evaluation
@@ -365,9 +291,9 @@ def take_snapshot(model: QNetwork, scenario: Scenario, run: RunConfig, best: flo
 class Progress:
     """One status line on a text stream, rewritten in place with a carriage return."""
 
-    def __init__(self, enabled: bool, env_step: int = 0, stream: TextIO = sys.stderr) -> None:
+    def __init__(self, enabled: bool, env_step: int = 0, stream: TextIO | None = None) -> None:
         self.enabled = enabled
-        self.stream = stream
+        self.stream = sys.stderr if stream is None else stream
         self.last_time = time.perf_counter()
         self.last_step = env_step
         self.width = 0
@@ -477,6 +403,166 @@ def restore_buffer(
     )
 
 
+# ---------------------------------------------------------------- one seed's part
+@dataclass(frozen=True)
+class SeedRun:
+    """One seed of a run: its seed, its output folder and the checkpoint it continues (None: it starts)."""
+
+    seed: int
+    out_dir: Path
+    resume: Path | None = None
+
+
+class SeedFailed(RuntimeError):
+    """Every seed of a run stopped on a non-finite loss (each one's last checkpoint stays)."""
+
+
+class SeedState:
+    """One seed's part of a run: its config, folder, generator, counters, replay buffer, worlds
+    and records, laid out as a one-seed run lays them out. The `Learner` holds its networks."""
+
+    def __init__(self, run: SeedRun, config: Config, learner: Learner, index: int, load_replay: bool,
+                 progress: Progress, many: bool) -> None:
+        self.seed = run.seed
+        self.label = f"seed {run.seed}: " if many else ""
+        """How progress lines name the seed ("" while it trains alone)."""
+        self.config = config.replace(seed=run.seed)
+        self.out_dir = Path(run.out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.log_path = self.out_dir / METRICS_FILE
+        self.rng = np.random.default_rng(run.seed)
+        self.counters = Counters(snapshot_evaluator=SNAPSHOT_EVALUATOR)
+        self.refill_to = 0
+        """transitions a resume's buffer must hold again before updates resume (0: none owed)."""
+        data, schedule = self.config.data, self.config.schedule
+        note = None
+        if run.resume is not None:
+            saved = load_checkpoint(run.resume)
+            learner.load_seed_state(index, saved.online, saved.target, saved.optimizer)
+            restore_rng_states(saved.rng, self.rng, learner.generators[index])
+            self.counters = saved.counters
+        self.wall_before = self.counters.wall_seconds
+        """seconds spent training in earlier sessions."""
+        self.buffer = ReplayBuffer(data.buffer_size, buffer_evader_slots(
+            training_scenarios(schedule, data.reward, self.counters.env_step)))
+        if run.resume is not None:
+            progress.show(f"loading the replay buffer of {run.resume}")
+            note = self.restore(Path(run.resume), load_replay)
+            write_record(self.log_path, {"kind": "resume", "env_step": self.counters.env_step, "note": note})
+            progress.note(note)
+        self.groups: list[WorldGroup] = []
+        self.recent: deque = deque(maxlen=RECENT_EPISODES)
+        self.losses: list[float] = []
+
+    def restore(self, resume: Path, load_replay: bool) -> str:
+        """Load or plan the refill of the resumed buffer (`restore_buffer`); a best that no longer
+        compares starts over. Returns the note that says which."""
+        saved_config = read_config(resume)
+        self.refill_to, note = restore_buffer(resume, saved_config, self.config, self.counters, self.buffer, load_replay)
+        # A fine-tune that evaluates snapshots on other scenarios, or a run whose snapshots were
+        # measured by another evaluator, starts its own best: such scores do not compare.
+        evaluation_changes = changed_fields(saved_config, self.config, SNAPSHOT_FIELDS)
+        if self.counters.snapshot_evaluator != SNAPSHOT_EVALUATOR:
+            evaluation_changes.append("the evaluator")
+            self.counters.snapshot_evaluator = SNAPSHOT_EVALUATOR
+        if evaluation_changes:
+            self.counters.best_score, self.counters.best_step = None, None
+            note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
+        return note
+
+    def enter_stage(self, scenarios: list[Scenario], announce: bool) -> None:
+        """New worlds for a new stage (episodes under way are dropped); `announce` logs it."""
+        learner = self.config.learner
+        num_envs = self.config.schedule.num_envs
+        self.groups = [WorldGroup(scenario, num_envs, self.buffer, self.config.data, learner.gamma, self.rng) for scenario in scenarios]
+        name = stage_label(scenarios)
+        if name not in self.counters.stages:
+            self.counters.stages.append(name)
+        if announce:
+            write_record(self.log_path, {"kind": "stage", "env_step": self.counters.env_step, "stage": name})
+
+    def collect(self, actor: QNetwork, group_index: int, epsilon: float) -> None:
+        """One batch step of worlds group `group_index`: act (epsilon-greedy), store, count episodes."""
+        group = self.groups[group_index]
+        turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
+        states = turn.observation.rows(turn.rows).as_inputs()
+        step = group.rollout.step(epsilon_greedy(actor, states, epsilon, self.rng))
+        # the next observation is the one before any restart
+        group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, self.rng)
+        pursuers = group.scenario.pursuers
+        group.returns += step.result.reward.sum(axis=1) / pursuers
+        group.terms += step.result.reward_terms.sum(axis=1) / pursuers
+        group.team += step.result.team_cooperation * step.result.acted.sum(axis=1) / pursuers
+        for env, outcome in step.outcomes.items():
+            self.recent.append((
+                outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps,
+                group.terms[env].copy(), group.team[env],
+            ))
+            group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
+            self.counters.episodes += 1
+
+    def snapshot(self, model: QNetwork, learner: Learner, index: int, progress: Progress) -> None:
+        """Evaluate the online network, log it, keep it (RunConfig.keep_snapshots) and in best/ when it scores best."""
+        run, counters = self.config.run, self.counters
+        record, better = take_snapshot(model, self.groups[0].scenario, run, counters.best_score)
+        write_record(self.log_path, {**record, "env_step": counters.env_step})
+        if run.keep_snapshots:
+            save_snapshot(self.out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), self.config, model, counters)
+        if better:
+            counters.best_score, counters.best_step = record["score"], counters.env_step
+            counters.replay_transitions = len(self.buffer)
+            self.checkpoint(learner, index, self.out_dir / BEST_FOLDER, save_replay=False)
+            progress.note(f"{self.label}snapshot at {counters.env_step}: score {record['score']:.3f}, "
+                          f"the best so far (kept in {BEST_FOLDER}/)")
+
+    def log_train(self, epsilon: float, learning_rate: float, stage_name: str, session_steps: int,
+                  session_seconds: float) -> None:
+        """The "train" record of metrics.jsonl (its losses since the last are cleared)."""
+        counters = self.counters
+        write_record(self.log_path, {
+            "kind": "train",
+            "env_step": counters.env_step,
+            "episodes": counters.episodes,
+            "updates": counters.updates,
+            "stage": stage_name,
+            "epsilon": epsilon,
+            "learning_rate": learning_rate,
+            "loss": float(np.mean(self.losses)) if self.losses else None,
+            **recent_means(self.recent),
+            "steps_per_second": session_steps / max(session_seconds, 1e-9),
+            "wall_seconds": counters.wall_seconds,
+        })
+        self.losses.clear()
+
+    def checkpoint(self, learner: Learner, index: int, folder: Path | None = None, save_replay: bool = True) -> None:
+        """A whole checkpoint into `folder` (the run's own by default): the replay buffer first
+        (DataConfig.save_replay), state.json last."""
+        if folder is None:
+            self.counters.replay_transitions = max(len(self.buffer), self.refill_to)  # a refill cut off still owes what it held
+        if save_replay and self.config.data.save_replay:
+            self.buffer.save(self.out_dir / REPLAY_FILE)
+        online, target, optimizer = learner.seed_state(index)
+        state = TrainingState(online, target, optimizer, self.counters, rng_states(self.rng, learner.generators[index]))
+        save_checkpoint(folder or self.out_dir, self.config, state)
+
+
+def progress_line(seeds: list[SeedState], env_step: int, total_steps: int, rate: float, epsilon: float,
+                  stage_name: str, last_losses: list[float | None]) -> str:
+    """The status line: steps, speed, and each seed's success over its recent episodes and last loss."""
+    def success(seed: SeedState) -> str:
+        value = recent_means(seed.recent)["success_rate"]
+        return "-" if value is None else f"{value:.2f}"
+
+    losses = "/".join("-" if loss is None else f"{loss:.3g}" for loss in last_losses)
+    seed_names = "" if len(seeds) == 1 else f"seeds {'/'.join(str(seed.seed) for seed in seeds)} | "
+    return (
+        f"step {env_step:,}/{total_steps:,} | {rate:,.0f} steps/s | {seed_names}"
+        f"episodes {'/'.join(str(seed.counters.episodes) for seed in seeds)} | "
+        f"success {'/'.join(success(seed) for seed in seeds)} | loss {losses} | "
+        f"eps {epsilon:.3f} | updates {seeds[0].counters.updates} | {stage_name}"
+    )
+
+
 # ---------------------------------------------------------------- the loop
 def train(
     config: Config,
@@ -485,185 +571,153 @@ def train(
     show_progress: bool = True,
     load_replay: bool = True,
 ) -> Counters:
-    """Train the config's network for its schedule's `total_steps` environment steps; return the
-    final counters.
+    """Train the config's network (seed `config.run.seed`) for its schedule's `total_steps`
+    environment steps into `out_dir`; return the final counters. See `train_seeds`."""
+    run = SeedRun(config.run.seed, Path(out_dir), None if resume is None else Path(resume))
+    return train_seeds(config, [run], show_progress, load_replay)[config.run.seed]
 
-    Writes metrics.jsonl, the checkpoint files (see training.checkpoint), the replay
-    buffer (replay.npz, `DataConfig.save_replay`) and the best snapshot (best/,
-    `RunConfig.snapshot_frequency`) into `out_dir`. With `resume`, weights, optimizer,
-    counters, RNG states and, when it was saved there, the replay buffer come from that
-    checkpoint (`restore_buffer`; `load_replay` false refills it instead). SIGINT (Ctrl-C) or
-    SIGTERM ends the batch step, writes a whole checkpoint and raises TrainingStopped. The
-    caller sets torch's thread count.
+
+def train_seeds(
+    config: Config, runs: list[SeedRun], show_progress: bool = True, load_replay: bool = True
+) -> dict[int, Counters]:
+    """Train the config's network for each seed of `runs` at once (seeds trained together, one
+    `Learner`), for the schedule's `total_steps` environment steps; return each seed's final
+    counters by seed.
+
+    Each seed writes into its own folder what a one-seed run writes: metrics.jsonl, the
+    checkpoint files (training.checkpoint), the replay buffer (replay.npz,
+    `DataConfig.save_replay`) and the best snapshot (best/, `RunConfig.snapshot_frequency`).
+    A seed that resumes continues its checkpoint's weights, optimizer, counters, RNG states
+    and, when it was saved there, replay buffer (`restore_buffer`; `load_replay` false refills
+    it instead); seeds trained together share one schedule, so they resume from one
+    environment step. A seed whose loss turns non-finite stops with one line (its last
+    checkpoint stays) and the others go on; SeedFailed when none is left. SIGINT (Ctrl-C) or
+    SIGTERM ends the batch step, writes every seed's checkpoint and raises TrainingStopped.
+    The caller sets torch's thread count.
     """
-    network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    log_path = out_dir / METRICS_FILE
+    learner_config, data, schedule, run = config.learner, config.data, config.schedule, config.run
+    if len({run.seed for run in runs}) != len(runs):
+        raise ValueError(f"train_seeds: the seeds {[run.seed for run in runs]} repeat one")
+    progress = Progress(show_progress)
 
-    # --- seeding
-    rng = np.random.default_rng()
-    seed_generators(run.seed, rng)
-
-    # --- networks, optimiser, counters, replay buffer
-    model, target, optimizer = build_learner(network, learner)
-    counters = Counters(snapshot_evaluator=SNAPSHOT_EVALUATOR)
-    if resume is not None:
-        resume = Path(resume)
-        counters = load_checkpoint(resume, model, target, optimizer, rng)
-        saved_config = read_config(resume)
-    actor = acting_network(model, learner.actor_update_frequency)
-    progress = Progress(show_progress, counters.env_step)
-    scenarios = training_scenarios(schedule, data.reward, counters.env_step)
-    buffer = ReplayBuffer(data.buffer_size, buffer_evader_slots(scenarios))
-    refill_to = 0  # transitions a resume's buffer must hold again before updates resume
-    if resume is not None:
-        progress.show(f"loading the replay buffer of {resume}")
-        refill_to, note = restore_buffer(resume, saved_config, config, counters, buffer, load_replay)
-        # A fine-tune that evaluates snapshots on other scenarios, or a run whose snapshots were
-        # measured by another evaluator, starts its own best: such scores do not compare.
-        evaluation_changes = changed_fields(saved_config, config, SNAPSHOT_FIELDS)
-        if counters.snapshot_evaluator != SNAPSHOT_EVALUATOR:
-            evaluation_changes.append("the evaluator")
-            counters.snapshot_evaluator = SNAPSHOT_EVALUATOR
-        if evaluation_changes:
-            counters.best_score, counters.best_step = None, None
-            note += f"; snapshots are evaluated anew ({', '.join(evaluation_changes)} changed), so the best starts over"
-        write_record(log_path, {"kind": "resume", "env_step": counters.env_step, "note": note})
-        progress.note(note)
-
-    # --- environments: a group of B worlds per scenario, stepped in turn
+    # --- seeding, networks and each seed's state (its generators, counters and replay buffer)
+    learner = Learner(config.network, learner_config, [run.seed for run in runs])
+    seeds = [SeedState(run, config, learner, k, load_replay, progress, many=len(runs) > 1) for k, run in enumerate(runs)]
+    steps = {seed.seed: seed.counters.env_step for seed in seeds}
+    if len(set(steps.values())) != 1:
+        raise ValueError(f"seeds trained together resume from one environment step; these are at {steps}")
+    env_step = seeds[0].counters.env_step
+    learner.refresh_actors()  # a resumed acting copy starts from the loaded weights
+    progress = Progress(show_progress, env_step)
+    stage_name = stage_label(training_scenarios(schedule, data.reward, env_step))
+    for seed in seeds:
+        seed.enter_stage(training_scenarios(schedule, data.reward, env_step), announce=False)
     num_envs = schedule.num_envs
-    groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in scenarios]
-    stage_name = stage_label(scenarios)
-    if stage_name not in counters.stages:
-        counters.stages.append(stage_name)
-    recent: deque = deque(maxlen=RECENT_EPISODES)
-    losses: list[float] = []
-    last_loss: float | None = None
-    session_start, session_step = time.perf_counter(), counters.env_step
-    wall_before = counters.wall_seconds
+    last_losses: list[float | None] = [None] * len(seeds)
+    session_start, session_step = time.perf_counter(), env_step
     refill_steps = 0  # environment steps of the refill: the schedule (stage, epsilon, step size) waits for them
+    refilling = any(seed.refill_to for seed in seeds)
 
     with StopRequests() as stops:
-        while counters.env_step < schedule.total_steps:
+        while env_step < schedule.total_steps:
             # --- curriculum: a new stage gets new worlds; episodes under way are dropped
-            stage = training_scenarios(schedule, data.reward, counters.env_step)
+            stage = training_scenarios(schedule, data.reward, env_step)
             if stage_label(stage) != stage_name:
-                groups = [WorldGroup(scenario, num_envs, buffer, data, learner.gamma, rng) for scenario in stage]
                 stage_name = stage_label(stage)
-                if stage_name not in counters.stages:
-                    counters.stages.append(stage_name)
-                write_record(log_path, {"kind": "stage", "env_step": counters.env_step, "stage": stage_name})
-                progress.note(f"environment step {counters.env_step}: stage {stage_name}")
-            group = groups[(counters.env_step + refill_steps) // num_envs % len(groups)]
+                for seed in seeds:
+                    seed.enter_stage(stage, announce=True)
+                progress.note(f"environment step {env_step}: stage {stage_name}")
+            group_index = (env_step + refill_steps) // num_envs % len(stage)
 
-            # --- collect: one batched forward for every active pursuer, epsilon-greedy each
+            # --- collect and store: every seed's worlds, each acted by its own network
             epsilon = linear_schedule(
-                schedule.start_e, schedule.end_e, schedule.exploration_fraction * schedule.total_steps, counters.env_step
+                schedule.start_e, schedule.end_e, schedule.exploration_fraction * schedule.total_steps, env_step
             )
-            learning_rate = learning_rate_at(learner, schedule.total_steps, counters.env_step)
-            for param_group in optimizer.param_groups:  # the config rules, not the rate a resumed optimizer saved
-                param_group["lr"] = learning_rate
-            turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
-            states = turn.observation.rows(turn.rows).as_inputs()
-            step = group.rollout.step(epsilon_greedy(actor, states, epsilon, rng))
-
-            # --- store (the next observation is the one before any restart)
-            group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
-
-            # --- episode bookkeeping
-            group.returns += step.result.reward.sum(axis=1) / group.scenario.pursuers
-            group.terms += step.result.reward_terms.sum(axis=1) / group.scenario.pursuers
-            group.team += step.result.team_cooperation * step.result.acted.sum(axis=1) / group.scenario.pursuers
-            for env, outcome in step.outcomes.items():
-                recent.append((
-                    outcome.success, group.returns[env], outcome.collision_ratio, outcome.steps,
-                    group.terms[env].copy(), group.team[env],
-                ))
-                group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
-                counters.episodes += 1
-            previous_step = counters.env_step
-            if refill_to:  # a resume refills its buffer at the step it stopped, as if it had never stopped
+            learning_rate = learning_rate_at(learner_config, schedule.total_steps, env_step)
+            learner.set_learning_rate(learning_rate)
+            for actor, seed in zip(learner.actors, seeds):
+                seed.collect(actor, group_index, epsilon)
+            previous_step = env_step
+            if refilling:  # a resume refills its buffers at the step it stopped, as if it had never stopped
                 refill_steps += num_envs
-                if len(buffer) >= refill_to and refill_steps >= data.learning_starts:
-                    refill_to = 0
-                    progress.note(f"environment step {counters.env_step}: refilled in {refill_steps:,} steps, updates resume")
+                if all(len(seed.buffer) >= seed.refill_to for seed in seeds) and refill_steps >= data.learning_starts:
+                    refilling = False
+                    for seed in seeds:
+                        seed.refill_to = 0
+                    progress.note(f"environment step {env_step}: refilled in {refill_steps:,} steps, updates resume")
             else:
-                counters.env_step += num_envs
+                env_step += num_envs
+                for seed in seeds:
+                    seed.counters.env_step = env_step
 
-            # --- learn: the updates due in this batch step, then the target copy when due
-            if not refill_to and counters.env_step >= data.learning_starts and len(buffer) >= learner.batch_size:
+            # --- learn: the updates due in this batch step (one call for every seed), then the target copy
+            if not refilling and env_step >= data.learning_starts and min(len(seed.buffer) for seed in seeds) >= learner_config.batch_size:
                 # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
-                due = crossings(max(previous_step, data.learning_starts), counters.env_step, learner.train_frequency)
-                for _ in range(due):
-                    batch = buffer.sample(learner.batch_size, rng)
-                    last_loss = learn(model, target, optimizer, batch, learner)
-                    losses.append(last_loss)
-                    counters.updates += 1
-                if crossings(previous_step, counters.env_step, learner.target_network_frequency):
-                    target.load_state_dict(model.state_dict())
-            if actor is not model and crossings(previous_step, counters.env_step, learner.actor_update_frequency):
-                actor.load_state_dict(model.state_dict())
+                due = crossings(max(previous_step, data.learning_starts), env_step, learner_config.train_frequency)
+                if due:
+                    losses = torch.stack([
+                        learner.update([seed.buffer.sample(learner_config.batch_size, seed.rng) for seed in seeds])
+                        for _ in range(due)
+                    ]).T.tolist()  # [S][due]: one read of the device a batch step
+                    for seed, seed_losses in zip(seeds, losses):
+                        seed.losses.extend(seed_losses)
+                        seed.counters.updates += due
+                    last_losses = [seed_losses[-1] for seed_losses in losses]
+                    failed = [k for k, seed_losses in enumerate(losses) if not np.isfinite(seed_losses).all()]
+                    if failed:
+                        seeds, last_losses = stop_seeds(failed, seeds, last_losses, learner, env_step, progress)
+                if crossings(previous_step, env_step, learner_config.target_network_frequency):
+                    learner.copy_target()
+            if crossings(previous_step, env_step, learner_config.actor_update_frequency or schedule.total_steps + 1):
+                learner.refresh_actors()
 
-            # --- evaluate, snapshot and log
-            finished = counters.env_step >= schedule.total_steps
-            counters.wall_seconds = wall_before + time.perf_counter() - session_start
-            if run.snapshot_frequency and (
-                crossings(previous_step, counters.env_step, run.snapshot_frequency) or finished
-            ):
-                progress.show(f"step {counters.env_step:,}: snapshot evaluation ({run.snapshot_episodes} episodes a scenario)")
-                record, better = take_snapshot(model, groups[0].scenario, run, counters.best_score)
-                write_record(log_path, {**record, "env_step": counters.env_step})
-                if run.keep_snapshots:
-                    save_snapshot(out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), config, model, counters)
-                if better:
-                    counters.best_score, counters.best_step = record["score"], counters.env_step
-                    counters.replay_transitions = len(buffer)
-                    save_checkpoint(out_dir / BEST_FOLDER, config, model, target, optimizer, counters, rng)
-                    progress.note(f"snapshot at {counters.env_step}: score {record['score']:.3f}, the best so far (kept in {BEST_FOLDER}/)")
-            if finished or crossings(previous_step, counters.env_step, run.log_frequency):
-                session_seconds = time.perf_counter() - session_start
-                record = {
-                    "kind": "train",
-                    "env_step": counters.env_step,
-                    "episodes": counters.episodes,
-                    "updates": counters.updates,
-                    "stage": stage_name,
-                    "epsilon": epsilon,
-                    "learning_rate": learning_rate,
-                    "loss": float(np.mean(losses)) if losses else None,
-                    **recent_means(recent),
-                    "steps_per_second": (counters.env_step - session_step) / max(session_seconds, 1e-9),
-                    "wall_seconds": counters.wall_seconds,
-                }
-                write_record(log_path, record)
-                losses.clear()
-            if progress.due() and refill_to:
-                progress.steps_per_second(counters.env_step)  # starts the next refresh window
-                progress.show(f"step {counters.env_step:,}: refilling the replay buffer, {len(buffer):,}/{refill_to:,} transitions")
+            # --- evaluate, snapshot and log, seed by seed
+            finished = env_step >= schedule.total_steps
+            session_seconds = time.perf_counter() - session_start
+            for k, seed in enumerate(seeds):
+                seed.counters.wall_seconds = seed.wall_before + session_seconds
+                if run.snapshot_frequency and (crossings(previous_step, env_step, run.snapshot_frequency) or finished):
+                    progress.show(f"step {env_step:,}: {seed.label}snapshot evaluation ({run.snapshot_episodes} episodes a scenario)")
+                    seed.snapshot(learner.online[k], learner, k, progress)
+                if finished or crossings(previous_step, env_step, run.log_frequency):
+                    seed.log_train(epsilon, learning_rate, stage_name, env_step - session_step, session_seconds)
+            if progress.due() and refilling:
+                progress.steps_per_second(env_step)  # starts the next refresh window
+                held = "/".join(f"{len(seed.buffer):,}/{seed.refill_to:,}" for seed in seeds)
+                progress.show(f"step {env_step:,}: refilling the replay buffer, {held} transitions")
             elif progress.due() or finished:
-                means = recent_means(recent)
-                success = "-" if means["success_rate"] is None else f"{means['success_rate']:.2f}"
-                loss_text = "-" if last_loss is None else f"{last_loss:.3g}"
-                progress.show(
-                    f"step {counters.env_step:,}/{schedule.total_steps:,} | "
-                    f"{progress.steps_per_second(counters.env_step):,.0f} steps/s | "
-                    f"episodes {counters.episodes} | success {success} | loss {loss_text} | "
-                    f"eps {epsilon:.3f} | updates {counters.updates} | {stage_name}"
-                )
+                rate = progress.steps_per_second(env_step)
+                progress.show(progress_line(seeds, env_step, schedule.total_steps, rate, epsilon, stage_name, last_losses))
 
-            # --- checkpoint (the replay buffer first: state.json, written last, marks a whole checkpoint)
+            # --- checkpoint every seed (the replay buffer first: state.json, written last, marks a whole checkpoint)
             stopping = stops.received is not None
-            if finished or stopping or crossings(previous_step, counters.env_step, run.checkpoint_frequency):
-                counters.replay_transitions = max(len(buffer), refill_to)  # a refill cut off still owes what it held
-                if data.save_replay:
-                    progress.show(f"step {counters.env_step:,}: saving the replay buffer ({len(buffer):,} transitions)")
-                    buffer.save(out_dir / REPLAY_FILE)
-                save_checkpoint(out_dir, config, model, target, optimizer, counters, rng)
+            if finished or stopping or crossings(previous_step, env_step, run.checkpoint_frequency):
+                for k, seed in enumerate(seeds):
+                    progress.show(f"step {env_step:,}: {seed.label}checkpoint ({len(seed.buffer):,} transitions)")
+                    seed.checkpoint(learner, k)
             if stopping:
                 progress.close()
-                raise TrainingStopped(stops.received, counters.env_step, out_dir)
+                folders = seeds[0].out_dir if len(seeds) == 1 else seeds[0].out_dir.parent
+                raise TrainingStopped(stops.received, env_step, folders)
 
     progress.close()
-    return counters
+    return {seed.seed: seed.counters for seed in seeds}
+
+
+def stop_seeds(
+    failed: list[int], seeds: list[SeedState], last_losses: list[float | None], learner: Learner, env_step: int,
+    progress: Progress,
+) -> tuple[list[SeedState], list[float | None]]:
+    """Stop the seeds at indices `failed` (a non-finite loss): one line each, their last
+    checkpoints stay; the others go on (the learner keeps them alone). SeedFailed when none is left."""
+    for k in failed:
+        progress.note(
+            f"Error: seed {seeds[k].seed}: a non-finite loss at environment step {env_step:,}; it stops here, "
+            f"its last checkpoint in {seeds[k].out_dir} stays" + ("" if len(failed) == len(seeds) else "; the other seeds go on")
+        )
+    kept = [k for k in range(len(seeds)) if k not in failed]
+    if not kept:
+        progress.close()
+        raise SeedFailed(f"every seed stopped on a non-finite loss at environment step {env_step:,}")
+    learner.keep(kept)
+    return [seeds[k] for k in kept], [last_losses[k] for k in kept]

@@ -220,21 +220,24 @@ def test_the_device_command_trains_the_cells_and_packs_the_resume_points_of_thos
     root = Path(__file__).parents[2]
     recipes = write_recipes(tmp_path / "recipes")
     (tmp_path / "out").mkdir()
+    # Seeds 1 and 2 of each method trained together (one process, its learner on DEVICE: the CPU here).
     env = {**os.environ, "OUT": str(tmp_path / "out"), "GRID_OUT": str(tmp_path / "runs"), "PROCESSES": "2",
-           "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    done = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
+           "DEVICE": "cpu", "SEEDS_PER_PROCESS": "2", "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    done = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1,2"],
                           cwd=root, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     for method in METHODS:
         with tarfile.open(tmp_path / "out" / f"{method}.tar.gz") as archive:
             names = archive.getnames()
-        assert f"{method}/seed-1/2-second/state.json" in names and f"{method}/seed-1/{method}.onnx" in names
+        assert f"{method}/seeds-1-2.log" in names
+        for seed in (1, 2):
+            assert f"{method}/seed-{seed}/2-second/state.json" in names and f"{method}/seed-{seed}/{method}.onnx" in names
         assert any(name.endswith("/best/model.safetensors") for name in names)
         assert not any(name.endswith(("replay.npz", ".run-lock")) or "/snapshots" in name for name in names)
     # Called again, every cell is finished and none is trained: nothing is packed.
     for archive in (tmp_path / "out").iterdir():
         archive.unlink()
-    again = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
+    again = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1,2"],
                            cwd=root, env=env, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     assert list((tmp_path / "out").iterdir()) == []
@@ -332,3 +335,30 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
                                                                                             "target.safetensors")
     ] + ["2-last-stage/model.safetensors", "2-last-stage/optimizer.pt", "2-last-stage/target.safetensors"])
     assert (tmp_path / "kept" / "iqn" / "seed-2.log").read_text() == "log"
+
+
+# ---------------------------------------------------------------- seeds trained together
+def test_seeds_per_process_stacks_each_methods_unfinished_cells_in_seed_order(tmp_path):
+    from training.grid import CellStack, stack_cells
+
+    cells = plan_grid(write_recipes(tmp_path / "recipes"), [1, 2, 3], tmp_path / "runs")
+    stacks = stack_cells(cells, 2)
+    names = [unit.name for unit, _ in stacks]
+    assert names == ["tiny-terl seeds 1,2", "tiny-terl seeds 3", "tiny-dqn seeds 1,2", "tiny-dqn seeds 3"]
+    first = stacks[0][0]
+    assert isinstance(first, CellStack) and first.log == tmp_path / "runs" / "tiny-terl" / "seeds-1-2.log"
+    assert first.arguments()[1:5] == ["--out", str(tmp_path / "runs" / "tiny-terl"), "--seeds", "1,2"]
+    assert stack_cells(cells, 1) == cells
+
+
+def test_a_grid_of_stacked_seeds_lays_out_and_ships_every_seed_as_cells_alone_do(tmp_path):
+    recipes = write_recipes(tmp_path / "recipes")[:1]
+    arguments = ["grid", str(recipes[0]), "--seeds", "1,2", "--out", str(tmp_path / "runs"), "--seeds-per-process", "2",
+                 "--ship", str(tmp_path / "exported")]
+    assert main(arguments) == 0
+    for seed in (1, 2):
+        policy = OnnxPolicy(tmp_path / "exported" / f"tiny-terl-seed-{seed}.onnx")
+        assert policy.metadata[META_SEED] == str(seed)
+        assert json.loads(policy.metadata["terl.training_config"])["run"]["seed"] == seed
+    assert "seed 2, segment 2/2 (second, to 120 steps): starting" in (tmp_path / "runs" / "tiny-terl" / "seeds-1-2.log").read_text()
+    assert main(arguments) == 0  # run again: both seeds finished, nothing to do

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from training.buffer import ReplayBuffer, pad_evader_slots
-from training.checkpoint import network_from_config, seed_generators
+from training.checkpoint import network_from_config
 from training.config import SECTION_OF, Config, ConfigError
 from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
@@ -136,12 +136,6 @@ def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
     train(tiny(total_steps=640), run, resume=run, show_progress=False)
     note = next(r["note"] for r in records(run) if r["kind"] == "resume")
     assert f"with its replay buffer ({saved:,} transitions)" in note
-
-
-def test_seed_generators_seeds_like_a_new_generator():
-    rng = np.random.default_rng(99)
-    seed_generators(5, rng)
-    assert rng.integers(2**31, size=3).tolist() == np.random.default_rng(5).integers(2**31, size=3).tolist()
 
 
 # ---------------------------------------------------------------- best snapshot

@@ -14,10 +14,10 @@ from terl_rt.sim.world import World
 from training.buffer import ReplayBuffer, trim_padding
 from training.config import Config, ConfigError
 from training.networks import network_classes
-from training.throughput import UPDATE_MODES, time_updates
-from training.train import (
-    TransitionStore, as_tensors, build_learner, epsilon_greedy, greedy_actions, taught_step, td_loss,
-)
+from training.checkpoint import network_from_config
+from training.learner import Learner, td_losses
+from training.throughput import PLAIN, benchmark
+from training.train import TransitionStore, as_tensors, epsilon_greedy, greedy_actions, taught_step
 from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 
 
@@ -28,7 +28,7 @@ def tiny(**changes) -> Config:
 def curriculum_buffer(config: Config, steps: int = 12) -> ReplayBuffer:
     """A buffer of 20 evader slots holding transitions of curriculum stage 1 (3 pursuers, 1
     evader) and of small-15, as a run's buffer holds several stages."""
-    model = build_learner(config.network, config.learner)[0]
+    model = network_from_config(config.network)
     rng = np.random.default_rng(0)
     buffer = ReplayBuffer(4_000, evader_slots=20)
     for name in ("curriculum-1", "small-15"):
@@ -71,20 +71,20 @@ def test_trimming_cuts_each_group_after_its_last_slot_valid_in_any_row():
 @pytest.mark.parametrize("model", sorted(network_classes()))
 def test_a_trimmed_batch_gives_the_loss_of_the_full_one(model):
     config = tiny(model=model, double_dqn=True)
-    online, target, _ = build_learner(config.network, config.learner)
+    learner = Learner(config.network, config.learner, [1])
     buffer = curriculum_buffer(config)
     batch = buffer.sample(64, np.random.default_rng(3))
     assert trim_padding(batch.observations)["mask"].shape[1] < batch.observations["mask"].shape[1]
     losses = []
     for trim in (False, True):
-        torch.manual_seed(7)  # the same quantile fractions for both
-        losses.append(td_loss(online, target, batch, config.learner, trim).item())
+        fractions = torch.Generator().manual_seed(7)  # the same quantile fractions for both
+        losses.append(td_losses(learner.network, learner.target_network, batch, config.learner, [fractions], trim).item())
     assert losses[1] == pytest.approx(losses[0], rel=1e-5, abs=1e-6)
 
 
 def test_greedy_actions_of_trimmed_states_are_those_of_the_full_states():
     config = tiny()
-    model = build_learner(config.network, config.learner)[0]
+    model = network_from_config(config.network)
     batch = curriculum_buffer(config).sample(128, np.random.default_rng(4))
     model.eval()
     with torch.inference_mode():
@@ -95,12 +95,14 @@ def test_greedy_actions_of_trimmed_states_are_those_of_the_full_states():
 # ---------------------------------------------------------------- bf16
 def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
     config = tiny()
-    online, target, _ = build_learner(config.network, config.learner)
+    learner = Learner(config.network, config.learner, [1])
+    online = learner.online[0]
     batch = curriculum_buffer(config).sample(64, np.random.default_rng(5))
     losses = {}
     for bf16 in (False, True):
-        torch.manual_seed(7)
-        losses[bf16] = td_loss(online, target, batch, config.replace(bf16=bf16).learner)
+        fractions = torch.Generator().manual_seed(7)
+        losses[bf16] = td_losses(learner.network, learner.target_network, batch, config.replace(bf16=bf16).learner,
+                                 [fractions])[0]
     assert losses[True].dtype == torch.float32
     assert losses[True].item() == pytest.approx(losses[False].item(), rel=0.05)
     with torch.autocast("cpu", dtype=torch.bfloat16):
@@ -108,11 +110,15 @@ def test_bf16_updates_keep_the_heads_output_in_float32_and_the_loss_close():
     assert quantiles.dtype == torch.float32
 
 
-def test_update_timing_runs_every_mode():
-    config = tiny()
-    online, target, optimizer = build_learner(config.network, config.learner)
-    rates = time_updates(online, target, optimizer, curriculum_buffer(config), config.learner, np.random.default_rng(0), 0.0)
-    assert set(rates) == set(UPDATE_MODES) and all(rate > 0 for rate in rates.values())
+def test_the_bench_times_the_one_seed_update_and_each_stack_of_seeds():
+    config = tiny(curriculum=False, scenario="curriculum-1", num_envs=2)
+    result = benchmark(config, seeds=(1, 2), seconds=0.0)
+    assert [speed.name for speed in result.updates] == [PLAIN, "1 seeds", "2 seeds"]
+    assert all(speed.updates_per_second > 0 and speed.aten_calls > 0 and speed.gflop > 0 for speed in result.updates)
+    two = result.updates[2]
+    assert two.seed_updates_per_second == pytest.approx(2 * two.updates_per_second)
+    assert two.gflop == pytest.approx(2 * result.updates[1].gflop, rel=0.35)  # twice the rows, buckets aside
+    assert result.matmul_gflops > 0 and result.cpu_capability
 
 
 # ---------------------------------------------------------------- what a step teaches

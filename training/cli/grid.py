@@ -9,22 +9,8 @@ import click
 from terl_rt.cli.options import address_option
 from terl_rt.evaluation.backends import BACKENDS, RAY_INSTALL_HINT
 from training.card import DEFAULT_MACHINE
+from training.cli.options import seed_list
 from training.config import ConfigError
-
-
-def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
-    """--seeds as whole numbers: "1,2,3" or a range "1-3" (or both: "1-3,7")."""
-    seeds: list[int] = []
-    for part in value.split(","):
-        first, _, last = part.strip().partition("-")
-        try:
-            span = range(int(first), int(last or first) + 1)
-        except ValueError:
-            span = range(0)
-        if not span:
-            raise click.BadParameter(f"expected seeds as 1,2,3 or 1-3, got {value!r}")
-        seeds.extend(span)
-    return seeds
 
 
 @click.command("grid")
@@ -37,6 +23,12 @@ def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
 @click.option("--processes", type=click.IntRange(1, 1024), metavar="N",
               help="Cells run at once, one torch thread each [default: 1; with --backend ray: every cell, "
                    "as the cluster's CPUs allow].")
+@click.option("--seeds-per-process", type=click.IntRange(1, 64), default=1, show_default=True, metavar="S",
+              help="Seeds of a method trained together in one process (one batched update for all, "
+                   "`run --seeds`), each still in DIR/<method>/seed-<S>/; a stack's log is "
+                   "DIR/<method>/seeds-<S>-<S>....log.")
+@click.option("--device", metavar="DEVICE",
+              help="torch device of every cell's updates: cpu or cuda[:K] (default: the recipes', cpu).")
 @click.option("--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
               help="Where the cells run: local (processes of this machine) or ray (Ray tasks of one CPU: a "
                    "local Ray instance, or the cluster at --address, whose nodes see DIR and the recipes at "
@@ -50,8 +42,9 @@ def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[in
 @click.option("--stop-after", type=click.FloatRange(min=0, min_open=True), metavar="MINUTES",
               help="Stop the grid after MINUTES as SIGTERM would: the running cells write whole checkpoints "
                    "and no other starts (exit status 130); for a machine lent for a while, or a session's end.")
-def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, processes: int | None, backend: str,
-                 address: str | None, ship: Path | None, machine: str, stop_after: float | None) -> int:
+def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, processes: int | None,
+                 seeds_per_process: int, device: str | None, backend: str, address: str | None, ship: Path | None,
+                 machine: str, stop_after: float | None) -> int:
     """Run every recipe with every seed, each cell `python -m training run RECIPE --out
     DIR/<method>/seed-<S> --seed S --threads 1` in a process of its own, and (with --ship)
     ship their policies and one card per method.
@@ -70,13 +63,14 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
       python -m training grid recipes/comparison/*.toml --seeds 1-3 --out /shared/comparison \\
           --backend ray --address auto --ship exported/comparison
       python -m training grid recipes/comparison/iqn.toml --seeds 4 --out runs/comparison
+      python -m training grid recipes/terl-authors.toml --seeds 1-3 --seeds-per-process 3 --out runs/authors
     """
-    from training.grid import LocalProcesses, plan_grid, run_grid
+    from training.grid import LocalProcesses, plan_grid, run_grid, stack_cells
     from training.ship import ship_grid
 
     if address is not None and backend != "ray":
         raise ConfigError("--address names a Ray cluster; pass --backend ray with it")
-    cells = plan_grid(recipes, seeds, out)
+    cells = stack_cells(plan_grid(recipes, seeds, out, device=device), seeds_per_process)
     if backend == "ray":
         try:
             from training.grid_ray import RayCells
@@ -89,7 +83,8 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
     else:
         runner, at_once = LocalProcesses(), processes or 1
     note = lambda line: click.echo(line, err=True)  # noqa: E731
-    note(f"grid of {len(cells)} cells ({len(recipes)} recipes x {len(seeds)} seeds) in {out}, {at_once} at once "
+    note(f"grid of {len(recipes)} recipes x {len(seeds)} seeds in {out}: {len(cells)} "
+         f"{'cells' if seeds_per_process == 1 else f'processes of up to {seeds_per_process} seeds'}, {at_once} at once "
          f"({backend})")
     outcome = run_grid(cells, runner, at_once, note, stop_after_s=None if stop_after is None else 60 * stop_after)
     note(f"{len(outcome.finished) + len(outcome.done)} cells finished, {len(outcome.failed)} failed, "

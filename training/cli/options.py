@@ -84,3 +84,18 @@ def output_option(metavar: str, help_text: str | None = None):
     """-o/--output, required."""
     return click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar=metavar,
                         help=help_text)
+
+
+def seed_list(ctx: click.Context, param: click.Parameter, value: str) -> list[int]:
+    """--seeds as whole numbers: "1,2,3" or a range "1-3" (or both: "1-3,7")."""
+    seeds: list[int] = []
+    for part in value.split(","):
+        first, _, last = part.strip().partition("-")
+        try:
+            span = range(int(first), int(last or first) + 1)
+        except ValueError:
+            span = range(0)
+        if not span:
+            raise click.BadParameter(f"expected seeds as 1,2,3 or 1-3, got {value!r}")
+        seeds.extend(span)
+    return seeds

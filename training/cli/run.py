@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from training.cli.options import set_threads
+from training.cli.options import seed_list, set_threads
+from training.config import ConfigError
 from training.recipe import load_recipe, run_recipe
 
 
@@ -20,8 +21,17 @@ from training.recipe import load_recipe, run_recipe
 @click.option("--seed", type=int, metavar="S",
               help="Seed of the run (default: the recipe's, 1): replaces every segment's run.seed, as "
                    "`train --seed` does; a cut-off run resumes with the seed it started with.")
+@click.option("--seeds", callback=lambda ctx, param, value: None if value is None else seed_list(ctx, param, value),
+              metavar="S,S,...", help="Train several seeds together in this process (one batched update for "
+              "all: 1,2,3 or 1-3), each in DIR/seed-<S>/ as one seed's run lays out DIR; not with --seed.")
+@click.option("--device", metavar="DEVICE",
+              help="torch device of the updates of every segment: cpu or cuda[:K] (default: the recipe's, cpu); "
+                   "rollouts stay on the CPU.")
+@click.option("--segments", type=click.IntRange(min=1), metavar="K",
+              help="Train the first K segments only (nothing is exported unless K covers the recipe).")
 @click.option("--quiet", is_flag=True, help="No progress line on stderr.")
-def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, quiet: bool) -> None:
+def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, seeds: list[int] | None,
+                device: str | None, segments: int | None, quiet: bool) -> None:
     """Make the policy a recipe (recipes/*.toml) describes: train its segments in order, each
     continuing the one before, and export the policy it ships into DIR.
 
@@ -32,11 +42,19 @@ def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, 
     Examples:
       python -m training run recipes/terl.toml --out runs/terl
       python -m training run recipes/comparison/iqn.toml --out runs/iqn-seed-2 --seed 2
+      python -m training run recipes/terl-paper.toml --out runs/paper --seeds 1-3 --segments 1
     """
-    from training.train import train
+    from training.train import train_seeds
 
+    if seed is not None and seeds is not None:
+        raise ConfigError("give --seed S (one seed, in DIR) or --seeds S,S,... (several, in DIR/seed-<S>), not both")
     plan = load_recipe(recipe)
     set_threads(threads or plan.segments[0].config.run.threads)
-    path = run_recipe(plan, out, train, threads=threads, seed=seed, show_progress=not quiet, note=click.echo)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    click.echo(f"{path}: {plan.ships} by {recipe}; sha256 {digest}")
+    paths = run_recipe(plan, out, train_seeds, threads=threads, seed=seed, seeds=seeds, device=device,
+                       segments=segments, show_progress=not quiet, note=click.echo)
+    for path in paths:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        click.echo(f"{path}: {plan.ships} by {recipe}; sha256 {digest}")
+    if not paths:
+        click.echo(f"segments 1-{segments} of {recipe} trained in {out} (nothing exported: the recipe has "
+                   f"{len(plan.segments)} segments)")

@@ -58,14 +58,33 @@ class ValidTokens:
     depends on padding (the attention gives padded keys a weight of exactly 0, the pooling
     and the target selection mask them out), so computing only the valid rows changes no
     output: onnxruntime gave the shipped policy's outputs bit for bit (docs/benchmarks.md).
+
+    Seeds trained together (training.networks.stacked) lay S networks' rows seed-major: the
+    mask is [S * B, L] and each seed's valid rows are padded to one capacity, N = S * C with C
+    the most valid tokens of any seed rounded up to `bucket` rows (padding rows repeat a
+    token of their seed and are never spread back), so every seed's token-wise layers run on
+    [C, W] in one batched product and shapes repeat across calls. `bucket` None (seeds = 1)
+    keeps exactly the valid rows, as the exported graph does.
     """
 
-    def __init__(self, mask: torch.Tensor) -> None:
-        flat = mask.reshape(-1)
-        (self.rows,) = torch.nonzero(flat, as_tuple=True)
-        # Row k + 1 of [zeros; valid rows] is valid token k; padding reads row 0, the zeros.
-        counted = flat.to(torch.int64).cumsum(0)
-        self.slots = torch.where(flat, counted, torch.zeros_like(counted))
+    def __init__(self, mask: torch.Tensor, seeds: int = 1, bucket: int | None = None) -> None:
+        if bucket is None:
+            flat = mask.reshape(-1)
+            (self.rows,) = torch.nonzero(flat, as_tuple=True)
+            # Row k + 1 of [zeros; valid rows] is valid token k; padding reads row 0, the zeros.
+            counted = flat.to(torch.int64).cumsum(0)
+            self.slots = torch.where(flat, counted, torch.zeros_like(counted))
+            return
+        by_seed = mask.reshape(seeds, -1)  # [S, B * L]
+        length = by_seed.shape[1]
+        counted = by_seed.to(torch.int64).cumsum(1)
+        capacity = capacity_of(counted[:, -1], bucket, length)
+        first_row = length * torch.arange(seeds, device=mask.device)[:, None]
+        # Valid token k of a seed is where its running count first reaches k + 1.
+        wanted = torch.arange(1, capacity + 1, device=mask.device).expand(seeds, -1).contiguous()
+        self.rows = (torch.searchsorted(counted, wanted).clamp_(max=length - 1) + first_row).reshape(-1)
+        first_slot = capacity * torch.arange(seeds, device=mask.device)[:, None]
+        self.slots = torch.where(by_seed, counted + first_slot, torch.zeros_like(counted)).reshape(-1)
 
     def gather(self, rows: torch.Tensor) -> torch.Tensor:
         """[B * L, W] -> the valid tokens' rows [N, W]."""
@@ -75,6 +94,16 @@ class ValidTokens:
         """The valid tokens' rows [N, W] -> [B * L, W], zeros at padding."""
         with_zeros = torch.cat([rows.new_zeros(1, rows.shape[1]), rows])
         return with_zeros.index_select(0, self.slots)
+
+
+def capacity_of(valid_counts: torch.Tensor, bucket: int, length: int) -> int:
+    """Rows each seed's valid tokens are padded to: the most valid tokens of any seed (counts [S])
+    rounded up to a multiple of `bucket`, at most `length` (B * L). On a GPU, where reading the
+    counts would wait for the device, every seed keeps all `length` rows instead."""
+    if valid_counts.device.type != "cpu":
+        return length
+    most = int(valid_counts.max())
+    return min(-(-most // bucket) * bucket, length)
 
 
 def attend(query: torch.Tensor, key: torch.Tensor, value: torch.Tensor, bias: torch.Tensor, heads: int,
@@ -168,14 +197,31 @@ class TransformerLayer(nn.Module):
         return tokens + self.feedforward_dropout(self.feedforward(self.feedforward_norm(tokens)))
 
 
+class TypeEmbedding(nn.Embedding):
+    """The learned type embedding: one row [H] per entity type (ego 0, teammate 1, evader 2, obstacle 3)."""
+
+    def __init__(self, hidden: int) -> None:
+        super().__init__(NUM_ENTITY_TYPES, hidden)
+
+    def add(self, tokens: torch.Tensor, kind: int) -> torch.Tensor:
+        """tokens [..., H] of entity type `kind` plus that type's row."""
+        # Adding by broadcasting needs no per-token type ids, whose length would depend on P, E and O.
+        return tokens + self.weight[kind]
+
+
 class RelationExtractor(nn.Module):
     """Per-type encoders, learned type embedding and L transformer layers (paper IV-B 1-2)."""
 
     def __init__(self, hidden: int, layers: int, heads: int) -> None:
         super().__init__()
         self.encoders = EntityEncoders(hidden)
-        self.type_embedding = nn.Embedding(NUM_ENTITY_TYPES, hidden)
+        self.type_embedding = TypeEmbedding(hidden)
         self.layers = nn.ModuleList(TransformerLayer(hidden, heads) for _ in range(layers))
+        self.seeds = 1
+        """networks whose rows a call holds, seed-major (training.networks.stacked sets it)."""
+        self.token_bucket: int | None = None
+        """None: the token-wise layers see exactly the valid tokens; K: each seed's, padded to a
+        multiple of K rows (`ValidTokens`)."""
 
     def forward(
         self,
@@ -191,20 +237,18 @@ class RelationExtractor(nn.Module):
         Token order is the mask order: ego, teammates, evaders, obstacles.
         """
         groups = self.encoders(ego, teammates, evaders, obstacles)
-        # Adding each group's type row by broadcasting needs no per-token type ids,
-        # whose length would depend on P, E and O.
-        types = self.type_embedding.weight
+        types = self.type_embedding
         tokens = torch.cat(
             [
-                (groups.ego + types[0]).unsqueeze(1),
-                groups.teammates + types[1],
-                groups.evaders + types[2],
-                groups.obstacles + types[3],
+                types.add(groups.ego, 0).unsqueeze(1),
+                types.add(groups.teammates, 1),
+                types.add(groups.evaders, 2),
+                types.add(groups.obstacles, 3),
             ],
             dim=1,
         )
         bias = attention_bias(mask)
-        valid = ValidTokens(mask)
+        valid = ValidTokens(mask, self.seeds, self.token_bucket)
         # Token-wise layers see the valid rows [N, H]: 2-D products export as Gemm, bias inside.
         rows = valid.gather(tokens.flatten(0, 1))
         for layer in self.layers:
