@@ -1,4 +1,4 @@
-"""Several policies against the paper's comparison: terl_rt.evaluation.comparison and
+"""Several policies against the paper's comparison: terl_rt.paper.comparison and
 `terl-rt report --policy A --policy B ...`.
 
 The claims are checked on hand-made group means whose answer is known: one set that
@@ -21,8 +21,9 @@ from onnx_models import write_broken_policy, write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
-from terl_rt.evaluation.claims import CLAIMS, DOES_NOT_REPRODUCE, NOT_MEASURED, REPRODUCES
-from terl_rt.evaluation.comparison import (
+from terl_rt.evaluation.stats import CI_METRICS
+from terl_rt.paper.claims import CLAIMS, DOES_NOT_REPRODUCE, NOT_MEASURED, REPRODUCES
+from terl_rt.paper.comparison import (
     ComparisonError,
     MethodRun,
     check_methods,
@@ -34,9 +35,8 @@ from terl_rt.evaluation.comparison import (
     table_iv,
     write_comparison,
 )
-from terl_rt.evaluation.paper import PAPER_METHODS, SMALL_RELEASED
-from terl_rt.evaluation.report import REPORT_SUITE, GroupSummary
-from terl_rt.evaluation.stats import CI_METRICS
+from terl_rt.paper.numbers import PAPER_METHODS, SMALL_RELEASED
+from terl_rt.paper.report import REPORT_SUITE, GroupSummary
 
 DATE = datetime(2025, 3, 1, 12, 30, tzinfo=timezone.utc)
 

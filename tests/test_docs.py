@@ -18,8 +18,8 @@ README_LINES = 150
 
 def runnable_blocks(text: str) -> list[str]:
     """The code of every ```python block that follows a RUNNABLE line, in page order."""
-    pattern = re.escape(RUNNABLE) + r"\n```python\n(.*?)\n```"
-    return re.findall(pattern, text, flags=re.S)
+    pattern = r"^" + re.escape(RUNNABLE) + r"\n```python\n(.*?)\n```"
+    return re.findall(pattern, text, flags=re.S | re.M)
 
 
 def pages() -> list[Path]:
@@ -36,7 +36,8 @@ EXAMPLES = [
 def test_a_runnable_mark_is_always_followed_by_a_python_block():
     for page in pages():
         text = page.read_text()
-        assert text.count(RUNNABLE) == len(runnable_blocks(text)), page
+        marks = sum(line == RUNNABLE for line in text.splitlines())
+        assert marks == len(runnable_blocks(text)), page
 
 
 def test_the_manual_has_runnable_examples():

@@ -15,7 +15,6 @@ from terl_rt import Scenario, Simulator
 from terl_rt.cli.eval import CSV_COLUMNS
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import ScenarioResult, episode_outcome
-from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.evaluation.stats import (
     CI_METRICS,
     bootstrap_interval,
@@ -25,6 +24,7 @@ from terl_rt.evaluation.stats import (
     success_interval,
     travel_times,
 )
+from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.metrics import EpisodeMetrics
 
 
@@ -169,7 +169,7 @@ def test_the_progress_bar_shows_an_eta(policy, monkeypatch):
 def test_report_tables_show_intervals_per_preset_and_per_group():
     from datetime import datetime, timezone
 
-    from terl_rt.evaluation.report import group_summaries, render_markdown
+    from terl_rt.paper.report import group_summaries, render_markdown
 
     episodes = tuple(metrics(k % 4 != 0, 80 + 10 * k, collided=k % 3) for k in range(20))
 

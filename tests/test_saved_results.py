@@ -1,11 +1,11 @@
-"""terl_rt.evaluation.saved_results: a finished evaluation written and read back."""
+"""terl_rt.paper.saved_results: a finished evaluation written and read back."""
 
 from __future__ import annotations
 
 import logging
 
 from terl_rt.evaluation.episodes import scenario_result
-from terl_rt.evaluation.saved_results import SavedResults
+from terl_rt.paper.saved_results import SavedResults
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 import terl_rt
+from terl_rt.command_line import address_option  # noqa: F401 (shared with python -m training)
 from terl_rt.evaluation.backends import BACKENDS, RayMissing, open_backend
 from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
 from terl_rt.evaluation.runs import Backend
@@ -249,12 +250,6 @@ backend_option = click.option(
     "--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
     help="Where the episodes run: local (this machine) or ray (Ray tasks: a local Ray instance, "
     "or the cluster at --address; pip install 'terl-rt[ray]'). Results and logs are the same.",
-)
-address_option = click.option(
-    "--address", type=str, default=None, metavar="ADDR",
-    help="The Ray cluster to join with --backend ray: HOST:PORT of its head (what `ray start --head` "
-    "prints) or auto (RAY_ADDRESS, or the cluster this machine belongs to) [default: start a local "
-    "Ray instance].",
 )
 log_option = click.option(
     "--log", "log_path", type=str, default=None, metavar="FILE.mcap",

@@ -1,5 +1,5 @@
 """The paper's comparison with several training seeds a method: who each policy is, and the
-aggregates over seeds (what `terl_rt.evaluation.seed_comparison_files` writes as
+aggregates over seeds (what `terl_rt.paper.seed_comparison_files` writes as
 docs/comparison.md, .png, .json and the marl-eval export).
 
 A grid ships each seed's policy as exported/comparison/<method>-seed-<S>.onnx, its
@@ -11,7 +11,7 @@ one seed of the method its `terl.model` names, its seed read from `terl.training
 `seed_statistics` takes one `SeedRun` a policy (its evaluations on the same scenarios) and
 computes, per method and scale group, the mean and the interquartile mean over seeds of
 each metric's per-(seed, preset) means with 95 % stratified bootstrap intervals, and the
-probability that TERL beats each other method (`terl_rt.evaluation.seed_stats`); and the
+probability that TERL beats each other method (`terl_rt.paper.seed_stats`); and the
 paper's claims judged on those means (`seed_claim_checks`).
 
 Beyond the paper, `beyond_scenarios` grows large-80's world to BEYOND_PURSUERS pursuers as
@@ -27,13 +27,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from terl_rt.evaluation import seed_stats
-from terl_rt.evaluation.claims import NOT_MEASURED, ClaimCheck, check_claims
-from terl_rt.evaluation.comparison import ComparisonError, method_name, paper_order
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.paper import REPORT_GROUPS, TERL, scale_group
 from terl_rt.evaluation.speed import scaling_scenario
 from terl_rt.evaluation.stats import travel_times
+from terl_rt.paper import seed_stats
+from terl_rt.paper.claims import NOT_MEASURED, ClaimCheck, check_claims
+from terl_rt.paper.comparison import ComparisonError, method_name, paper_order
+from terl_rt.paper.numbers import REPORT_GROUPS, TERL, scale_group
 from terl_rt.policy.contract import META_METHOD, META_MODEL, META_SEED, META_TRAINING_CONFIG
 from terl_rt.sim.scenario import Scenario
 

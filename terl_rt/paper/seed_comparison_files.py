@@ -1,8 +1,8 @@
 """The files of a comparison over training seeds: docs/comparison.md (the aggregates, the
 claims, Tables III and IV beside the paper's), comparison.png (the paper's Fig. 3 as bars,
-`terl_rt.evaluation.seed_figure`), comparison.json (every episode and every statistic) and
-comparison-marl-eval.json (every episode in marl-eval's format, `terl_rt.evaluation.marl_eval`),
-from the `SeedRun`s and `SeedStatistics` of `terl_rt.evaluation.seed_comparison`.
+`terl_rt.paper.seed_figure`), comparison.json (every episode and every statistic) and
+comparison-marl-eval.json (every episode in marl-eval's format, `terl_rt.paper.marl_eval`),
+from the `SeedRun`s and `SeedStatistics` of `terl_rt.paper.seed_comparison`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from terl_rt.evaluation import seed_stats
-from terl_rt.evaluation.marl_eval import marl_eval_dict
-from terl_rt.evaluation.paper import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
-from terl_rt.evaluation.figures import require_matplotlib
-from terl_rt.evaluation.report import comparability_note, join_words, run_settings, training_steps_text
-from terl_rt.evaluation.seed_comparison import (
+from terl_rt.evaluation.stats import format_interval
+from terl_rt.paper import seed_stats
+from terl_rt.paper.figures import require_matplotlib
+from terl_rt.paper.marl_eval import marl_eval_dict
+from terl_rt.paper.numbers import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
+from terl_rt.paper.report import comparability_note, join_words, run_settings, training_steps_text
+from terl_rt.paper.seed_comparison import (
     AGGREGATES,
     BEYOND_PURSUERS,
     METRICS,
@@ -32,8 +33,7 @@ from terl_rt.evaluation.seed_comparison import (
     method_runs,
     seed_statistics,
 )
-from terl_rt.evaluation.seed_figure import plot_seed_comparison
-from terl_rt.evaluation.stats import format_interval
+from terl_rt.paper.seed_figure import plot_seed_comparison
 from terl_rt.policy.contract import META_TRAINING_STEPS
 
 MARKDOWN_NAME = "comparison.md"
