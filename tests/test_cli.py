@@ -12,7 +12,7 @@ from onnx_models import write_broken_policy, write_random_bytes, write_test_poli
 from PIL import Image
 from tiny_worlds import capture_scenario
 
-import terl_rt.cli.options
+import terl_rt.policy.shipped
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA
 
@@ -89,8 +89,8 @@ def test_eval_with_two_workers_matches_one(files):
 
 
 def test_eval_without_the_default_policy_says_to_pass_one(monkeypatch, tmp_path):
-    monkeypatch.setattr(terl_rt.cli.options, "DEFAULT_POLICY", Path("exported") / "absent-policy.onnx")
-    monkeypatch.setattr(terl_rt.cli.options, "PACKAGED_POLICY", ("terl_rt.policy", "default/absent-policy.onnx"))
+    monkeypatch.setattr(terl_rt.policy.shipped, "DEFAULT_POLICY", Path("exported") / "absent-policy.onnx")
+    monkeypatch.setattr(terl_rt.policy.shipped, "PACKAGED_POLICY", ("terl_rt.policy", "default/absent-policy.onnx"))
     monkeypatch.chdir(tmp_path)
     result = invoke("eval", "--episodes", "1")
     assert result.exit_code == 2

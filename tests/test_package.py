@@ -14,7 +14,7 @@ from wheels import build_wheel
 
 import terl_rt
 from terl_rt import Scenario
-from terl_rt.cli.options import packaged_policy_path
+from terl_rt.policy.shipped import packaged_policy_path
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -22,7 +22,6 @@ from terl_rt.cli.options import (
     policy_option,
     policy_threads,
     resolve_scenarios,
-    run_backend,
     scenario_file_option,
     scenarios_option,
     seed_option,
@@ -34,9 +33,7 @@ from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA, ScenarioResult
 from terl_rt.evaluation.stats import format_interval
 from terl_rt.files import atomic_output
-from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.contract import META_CONTRACT, META_TRAINING_STEPS
-from terl_rt.policy.onnx_policy import policy_info
 
 HEADER = (
     f"{'scenario':<14}{'episodes':>9}{'success':>9} {'95 % CI':<13}{'travel, successes (s)':>22} {'95 % CI':<15}"
@@ -147,16 +144,11 @@ def eval_command(
     for option, path in (("--log", log_path), ("--csv", csv_path)):
         if path is not None:  # the default policy too
             check_output(path, option, [("--policy", policy.path)], force)
-    info = policy_info(policy)
-    with run_backend(backend, workers, address, threads) as runner:
-        log = EpisodeLogWriter(Path(log_path), info, staged=True, replace=force) if log_path else None
-        try:
-            results = evaluate_with_progress(
-                policy, scenarios, episodes, seed, max_steps=max_steps, log=log, backend=runner,
-            )
-        finally:
-            if log is not None:
-                log.close()
+    evaluation = evaluate_with_progress(
+        policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
+        backend=backend, address=address, threads=threads,
+    )
+    results, info = list(evaluation.results), evaluation.policy
 
     # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
@@ -177,7 +169,7 @@ def eval_command(
             write_csv(staging, results, info)
     if as_json:
         return
-    if log is not None:
-        click.echo(f"log: {log.path} ({log.episodes_written} episodes)")
+    if evaluation.log_path is not None:
+        click.echo(f"log: {evaluation.log_path} ({evaluation.logged_episodes} episodes)")
     if csv_path is not None:
         click.echo(f"csv: {csv_path} ({sum(r.episodes for r in results)} episodes)")

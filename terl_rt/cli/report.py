@@ -10,7 +10,6 @@ import textwrap
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 
 import click
@@ -204,8 +203,8 @@ def report_command(
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
-    with run_backend(backend, workers, address, threads) as runner:
-        results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
+    results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers,
+                                     backend=backend, address=address, threads=threads).results
     info = policy_info(policy)
     paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
     # The results reach the terminal before any file is written: a full disk cannot lose them.
@@ -254,7 +253,7 @@ class ComparisonRun:
         progress bar, its lines on stderr."""
         with run_backend(self.backend, self.workers, self.address, self.threads) as backend:
             def evaluate(policy: OnnxPolicy, scenario: Scenario, episodes: int) -> ScenarioResult:
-                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=backend)
+                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=backend).results
                 return result
 
             yield ComparisonRunner(self.out_dir, self.seed, self.max_steps, evaluate, lambda line: click.echo(line, err=True))
