@@ -307,7 +307,7 @@ def test_report_with_several_policies_writes_the_comparison(policies, tmp_path):
     result = invoke("report", "--policy", policies / "iqn.onnx", "--policy", policies / "terl.onnx", *TINY,
                     "--out", out)
     assert result.exit_code == 0, result.output
-    assert "IQN: " in result.stderr and "cc-28" in result.stderr  # each method, then its progress bars
+    assert "IQN: " in result.stderr  # each method (its progress bars only on a terminal)
     assert f"wrote {out / 'comparison.md'}, {out / 'comparison.png'} and {out / 'comparison.json'}" in result.stdout
     assert "not measured" in next(line for line in result.stdout.splitlines() if "IQN degrades" in line)
     assert sorted(p.name for p in out.iterdir()) == ["comparison.json", "comparison.md", "comparison.png"]

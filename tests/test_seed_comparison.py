@@ -26,6 +26,7 @@ from PIL import Image
 
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.speed import scaling_scenario
+from terl_rt.evaluation.stats import success_interval
 from terl_rt.paper.comparison import ComparisonError
 from terl_rt.paper.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
 from terl_rt.paper.runner import PROGRESS_FOLDER, over_seeds
@@ -39,6 +40,7 @@ from terl_rt.paper.seed_comparison import (
     seed_statistics,
 )
 from terl_rt.paper.seed_comparison_files import (
+    EXACT_NOTE,
     MARL_EVAL_NAME,
     OUTPUT_NAMES,
     render_seed_markdown,
@@ -115,11 +117,26 @@ def test_the_worlds_beyond_the_paper_are_bench_scalings():
 # --- aggregates ------------------------------------------------------------------------
 
 
-def test_seeds_that_all_succeed_have_a_mean_and_interval_of_one():
+def test_seeds_that_all_succeed_have_a_mean_of_one_and_the_exact_interval_of_their_episodes():
     terl = row(seed_statistics(made_runs()), "TERL", "small")
     assert (terl.seeds, terl.presets, terl.episodes) == (2, ("small-11", "small-15"), 4)
     assert terl.values["mean"]["success_rate"] == terl.values["iqm"]["success_rate"] == 1.0
-    assert terl.ci95["mean"]["success_rate"] == (1.0, 1.0)
+    # A bootstrap of 16 successes in 16 can only draw 1.00: the exact interval of 16 in 16 instead.
+    assert terl.success_exact
+    assert terl.ci95["mean"]["success_rate"] == terl.ci95["iqm"]["success_rate"] == success_interval(16, 16)
+
+
+def test_one_seed_has_the_exact_interval_of_its_episodes_and_the_markdown_says_so():
+    stats = seed_statistics([made_run("TERL", 1, successes=3)])
+    terl = row(stats, "TERL", "large")
+    assert terl.values["mean"]["success_rate"] == 0.75
+    assert terl.success_exact and terl.ci95["mean"]["success_rate"] == success_interval(3, 4)
+    markdown = render_seed_markdown([made_run("TERL", 1, successes=3)], stats, "terl-rt report", DATE)
+    assert "0.75 [0.19, 0.99] †" in markdown and EXACT_NOTE in markdown
+
+
+def test_seeds_that_differ_keep_the_stratified_bootstrap_interval():
+    assert not row(seed_statistics(made_runs()), "IQN", "large").success_exact
 
 
 def test_a_seed_that_never_learns_stays_in_the_mean_and_widens_its_interval():

@@ -136,12 +136,17 @@ def policy_threads(backend: str, workers: int | None, threads: int | None) -> in
     return threads if backend == "local" and (workers or 1) == 1 else None
 
 
+def progressbar(*args: Any, **kwargs: Any) -> Any:
+    """click.progressbar (its arguments; file: stderr unless given), hidden where that file is
+    no terminal (a log file, a pipe), where it would print its label alone, without a bar."""
+    kwargs.setdefault("file", sys.stderr)
+    return click.progressbar(*args, hidden=not kwargs["file"].isatty(), **kwargs)
+
+
 @contextmanager
 def progress_bar(scenario: Scenario, episodes: int) -> Iterator[Progress]:
     """A progress bar on stderr for one scenario's episodes (`terl_rt.evaluate`'s progress)."""
-    with click.progressbar(
-        length=episodes, label=f"{scenario.name:<14}", file=sys.stderr, show_pos=True, show_eta=True,
-    ) as bar:
+    with progressbar(length=episodes, label=f"{scenario.name:<14}", show_pos=True, show_eta=True) as bar:
         yield lambda index, metrics: bar.update(1)
 
 
@@ -179,7 +184,7 @@ scenarios_option = click.option(
 )
 scenario_file_option = click.option(
     "--scenario-file", type=str, default=None, metavar="FILE",
-    help="A JSON scenario file instead of presets: the form `terl-rt scenarios --json` prints for each preset "
+    help="A JSON scenario file instead of presets: the form `terl-rt scenarios --json NAME` prints for a preset "
     "(the terl-rt repository's docs/world.md section 12).",
 )
 suite_option = click.option(

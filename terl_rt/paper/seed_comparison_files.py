@@ -57,12 +57,20 @@ _CELL = {"success_rate": (2, ""), "travel_time_s": (1, ""), "travel_time_s_limit
 """metric -> (decimals, unit) in the tables."""
 
 
+EXACT_MARK = " †"
+"""Marks a success rate whose interval is the exact one over its episodes (`Aggregate.success_exact`)."""
+EXACT_NOTE = ("† the success rate's exact (Clopper-Pearson) interval over every episode of the cell: with one "
+              "seed, or every episode alike, the bootstrap has nothing to draw again.")
+"""What EXACT_MARK means, said under the figure's description where a cell holds one."""
+
+
 def _cell(row: Aggregate, aggregate: str, metric: str) -> str:
     digits, _ = _CELL[metric]
     value, interval = row.values[aggregate][metric], row.ci95[aggregate][metric]
     if math.isnan(value):
         return "—"
-    return f"{value:.{digits}f} {format_interval(interval, digits)}"
+    exact = EXACT_MARK if metric == "success_rate" and row.success_exact else ""
+    return f"{value:.{digits}f} {format_interval(interval, digits)}{exact}"
 
 
 def _paper_row(method: str, group: str) -> str:
@@ -111,7 +119,8 @@ def render_seed_markdown(
         "(seed, preset) weighing the same), the dot its interquartile mean, the error bars the mean's 95 % "
         "stratified bootstrap interval (seeds drawn again within each preset, then each drawn seed's "
         "episodes; 2,000 resamples, fixed seed), as rliable recommends (Agarwal et al. 2021). A method "
-        "that never learned on some seed keeps that seed: it is part of the method's reliability.",
+        "that never learned on some seed keeps that seed: it is part of the method's reliability."
+        + (f" {EXACT_NOTE}" if any(row.success_exact for row in rows) else ""),
         "",
         "## Claims",
         "",
