@@ -13,7 +13,7 @@
 # REPORT_OUT/.report-progress the moment it finishes (the one under way is lost). The archive
 # holds that folder, and the comparison's files when the report finished. Here, `tar xzf
 # report.tar.gz -C docs` and the same report command read the device's results back: an
-# evaluation does not depend on the workers that ran it (terl_rt/evaluation/saved_results.py).
+# evaluation does not depend on the workers that ran it (terl_rt/paper/saved_results.py).
 # Exits 0 when the time ran out.
 set -euo pipefail
 minutes=$1

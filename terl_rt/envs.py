@@ -86,16 +86,17 @@ def parallel_env(
     return TerlParallelEnv(scenario, seed, render_mode, evader_policy, max_steps, render_size)
 
 
-def raw_env(**kwargs: Any) -> AECEnv:
-    """The AEC form of `parallel_env(**kwargs)` (pursuers act in turn), without PettingZoo's
+def raw_env(*args: Any, **kwargs: Any) -> AECEnv:
+    """The AEC form of `parallel_env(...)` (pursuers act in turn; its arguments, the scenario
+    first), without PettingZoo's order-enforcing wrapper."""
+    return parallel_to_aec_wrapper(parallel_env(*args, **kwargs))
+
+
+def env(*args: Any, **kwargs: Any) -> AECEnv:
+    """The AEC form of `parallel_env(...)` (its arguments, the scenario first), as
+    PettingZoo's own `env()` constructors return it: `parallel_to_aec`, with the
     order-enforcing wrapper."""
-    return parallel_to_aec_wrapper(parallel_env(**kwargs))
-
-
-def env(**kwargs: Any) -> AECEnv:
-    """The AEC form of `parallel_env(**kwargs)`, as PettingZoo's own `env()` constructors
-    return it: `parallel_to_aec`, with the order-enforcing wrapper."""
-    return parallel_to_aec(parallel_env(**kwargs))
+    return parallel_to_aec(parallel_env(*args, **kwargs))
 
 
 class TerlParallelEnv(ParallelEnv):

@@ -55,13 +55,10 @@ def test_module_example_runs(policy_path, capsys):
     assert capsys.readouterr().out.count("\n") == 2
 
 
-def test_readme_embedding_example_runs(policy_path):
-    readme = REPO_ROOT / "README.md"
-    if not readme.exists():
-        pytest.skip("no README.md yet")
-    examples = [block for block in python_blocks(readme.read_text()) if "terl_rt.policy.embed" in block]
-    if not examples:
-        pytest.skip("README.md has no embedding example")
+def test_the_embedding_pages_example_runs(policy_path):
+    page = REPO_ROOT / "docs" / "embedding.md"
+    examples = [block for block in python_blocks(page.read_text()) if "terl_rt.policy.embed" in block]
+    assert examples, "docs/embedding.md has no embedding example"
     for example in examples:
         run_example(example, policy_path)
 

@@ -1,4 +1,4 @@
-"""The parts of the repository point one way (README, "Layout"): import-linter's contracts in
+"""The parts of the repository point one way (docs/layout.md): import-linter's contracts in
 pyproject.toml, checked as CI's `lint-imports` checks them."""
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from wheels import build_wheel
 
 import terl_rt
 from terl_rt import Scenario
-from terl_rt.cli.options import packaged_policy_path
+from terl_rt.policy.shipped import packaged_policy_path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,7 +94,7 @@ def test_the_installed_terl_rt_evaluates_from_another_folder(installed, tmp_path
 def test_the_docs_the_code_cites_are_in_the_repository():
     for name in ("world.md", "policy.md"):
         assert (ROOT / "docs" / name).is_file()
-    for path in [ROOT / "README.md", *(ROOT / "terl_rt").rglob("*.py")]:
+    for path in [ROOT / "README.md", *(ROOT / "docs").glob("*.md"), *(ROOT / "terl_rt").rglob("*.py")]:
         assert "shared/spec" not in path.read_text(), path
 
 

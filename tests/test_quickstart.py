@@ -1,4 +1,4 @@
-"""The training quick start the README runs: the first segment of recipes/terl-paper.toml."""
+"""The training quick start docs/train.md runs: the first segment of recipes/terl-paper.toml."""
 
 from __future__ import annotations
 

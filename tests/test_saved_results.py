@@ -1,11 +1,11 @@
-"""terl_rt.evaluation.saved_results: a finished evaluation written and read back."""
+"""terl_rt.paper.saved_results: a finished evaluation written and read back."""
 
 from __future__ import annotations
 
 import logging
 
 from terl_rt.evaluation.episodes import scenario_result
-from terl_rt.evaluation.saved_results import SavedResults
+from terl_rt.paper.saved_results import SavedResults
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 
@@ -50,3 +50,12 @@ def test_a_file_that_is_no_such_result_is_evaluated_again_with_a_warning(tmp_pat
             assert saved.load(SHA, scenario, 2, 3) is None
         assert "is no saved evaluation of small-15" in caplog.text
         caplog.clear()
+
+
+def test_a_saved_result_is_published_whole_through_the_one_writer(tmp_path):
+    scenario = Scenario.preset("small-15")
+    saved = SavedResults(tmp_path)
+    path = saved.save(SHA, scenario, made_result(scenario))
+    assert [entry.name for entry in tmp_path.iterdir()] == [path.name]
+    (tmp_path / f".{path.stem}.4711.abcd.partial.json").write_text("{")  # a run killed while writing
+    assert saved.count() == 1

@@ -1,4 +1,4 @@
-"""The comparison over training seeds: terl_rt.evaluation.seed_comparison, its files
+"""The comparison over training seeds: terl_rt.paper.seed_comparison, its files
 (seed_comparison_files), its marl-eval export and `terl-rt report` on policies that carry
 terl.method and terl.seed.
 
@@ -25,10 +25,12 @@ from onnx_models import write_test_policy
 from PIL import Image
 
 from terl_rt.cli.main import cli
-from terl_rt.cli.report import over_seeds
-from terl_rt.evaluation.comparison import ComparisonError
-from terl_rt.evaluation.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
-from terl_rt.evaluation.seed_comparison import (
+from terl_rt.evaluation.speed import scaling_scenario
+from terl_rt.evaluation.stats import success_interval
+from terl_rt.paper.comparison import ComparisonError
+from terl_rt.paper.marl_eval import ABSOLUTE, ENVIRONMENT, STEP, marl_eval_dict
+from terl_rt.paper.runner import PROGRESS_FOLDER, over_seeds
+from terl_rt.paper.seed_comparison import (
     CANNOT_TELL,
     SeedRun,
     beyond_scenarios,
@@ -37,14 +39,14 @@ from terl_rt.evaluation.seed_comparison import (
     policy_identity,
     seed_statistics,
 )
-from terl_rt.evaluation.seed_comparison_files import (
+from terl_rt.paper.seed_comparison_files import (
+    EXACT_NOTE,
     MARL_EVAL_NAME,
     OUTPUT_NAMES,
     render_seed_markdown,
     seed_comparison_dict,
     write_seed_comparison,
 )
-from terl_rt.evaluation.speed import scaling_scenario
 from terl_rt.policy.onnx_policy import OnnxPolicy
 
 DATE = datetime(2025, 3, 1, 12, 30, tzinfo=timezone.utc)
@@ -115,11 +117,26 @@ def test_the_worlds_beyond_the_paper_are_bench_scalings():
 # --- aggregates ------------------------------------------------------------------------
 
 
-def test_seeds_that_all_succeed_have_a_mean_and_interval_of_one():
+def test_seeds_that_all_succeed_have_a_mean_of_one_and_the_exact_interval_of_their_episodes():
     terl = row(seed_statistics(made_runs()), "TERL", "small")
     assert (terl.seeds, terl.presets, terl.episodes) == (2, ("small-11", "small-15"), 4)
     assert terl.values["mean"]["success_rate"] == terl.values["iqm"]["success_rate"] == 1.0
-    assert terl.ci95["mean"]["success_rate"] == (1.0, 1.0)
+    # A bootstrap of 16 successes in 16 can only draw 1.00: the exact interval of 16 in 16 instead.
+    assert terl.success_exact
+    assert terl.ci95["mean"]["success_rate"] == terl.ci95["iqm"]["success_rate"] == success_interval(16, 16)
+
+
+def test_one_seed_has_the_exact_interval_of_its_episodes_and_the_markdown_says_so():
+    stats = seed_statistics([made_run("TERL", 1, successes=3)])
+    terl = row(stats, "TERL", "large")
+    assert terl.values["mean"]["success_rate"] == 0.75
+    assert terl.success_exact and terl.ci95["mean"]["success_rate"] == success_interval(3, 4)
+    markdown = render_seed_markdown([made_run("TERL", 1, successes=3)], stats, "terl-rt report", DATE)
+    assert "0.75 [0.19, 0.99] †" in markdown and EXACT_NOTE in markdown
+
+
+def test_seeds_that_differ_keep_the_stratified_bootstrap_interval():
+    assert not row(seed_statistics(made_runs()), "IQN", "large").success_exact
 
 
 def test_a_seed_that_never_learns_stays_in_the_mean_and_widens_its_interval():
@@ -280,7 +297,7 @@ def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, t
 
     clean = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "clean", "--json")
     assert clean.exit_code == 0, clean.output
-    assert not (tmp_path / "clean" / report_cli.PROGRESS_FOLDER).exists()
+    assert not (tmp_path / "clean" / PROGRESS_FOLDER).exists()
     evaluate = report_cli.evaluate_with_progress
     calls = []
 
@@ -295,28 +312,26 @@ def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, t
     monkeypatch.setattr(report_cli, "evaluate_with_progress", cut_off_at_the_fourth)
     cut = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "cut", "--json")
     assert cut.exit_code != 0 and not (tmp_path / "cut" / MARL_EVAL_NAME).exists()
-    assert len(list((tmp_path / "cut" / report_cli.PROGRESS_FOLDER).glob("*.json"))) == 3
+    assert len(list((tmp_path / "cut" / PROGRESS_FOLDER).glob("*.json"))) == 3
     calls.clear()
     cut_at.clear()
     again = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "cut", "--json")
     assert again.exit_code == 0, again.output
     assert len(calls) == 8 - 3 and "3 results of an earlier run in" in again.stderr
     assert json.loads(again.stdout)["aggregates"] == json.loads(clean.stdout)["aggregates"]
-    assert not (tmp_path / "cut" / report_cli.PROGRESS_FOLDER).exists()
+    assert not (tmp_path / "cut" / PROGRESS_FOLDER).exists()
 
 
 def test_keep_progress_leaves_the_evaluations_for_a_later_comparison_with_more_policies(seeded, tmp_path):
     pytest.importorskip("matplotlib")
-    from terl_rt.cli import report as report_cli
-
     first = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--policy", seeded / "iqn-seed-1.onnx", *TINY,
                    "--out", tmp_path, "--keep-progress")
     assert first.exit_code == 0, first.output
-    assert len(list((tmp_path / report_cli.PROGRESS_FOLDER).glob("*.json"))) == 4  # 2 policies x 2 scenarios
+    assert len(list((tmp_path / PROGRESS_FOLDER).glob("*.json"))) == 4  # 2 policies x 2 scenarios
     every = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path, "--force")
     assert every.exit_code == 0, every.output
     assert "4 results of an earlier run in" in every.stderr and "[4/4] IQN seed 2: " in every.stderr
-    assert not (tmp_path / report_cli.PROGRESS_FOLDER).exists()
+    assert not (tmp_path / PROGRESS_FOLDER).exists()
     alone = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--out", tmp_path / "one", "--keep-progress")
     assert alone.exit_code == 2
     assert alone.stderr == "Error: --keep-progress: only a comparison (several policies, or --beyond) keeps its evaluations\n"

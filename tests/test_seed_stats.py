@@ -1,11 +1,11 @@
-"""Aggregates over seeds (terl_rt.evaluation.seed_stats) on hand-worked tiny cases."""
+"""Aggregates over seeds (terl_rt.paper.seed_stats) on hand-worked tiny cases."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from terl_rt.evaluation.seed_stats import (
+from terl_rt.paper.seed_stats import (
     aggregates_with_intervals,
     bootstrap_scores,
     improvement_with_interval,

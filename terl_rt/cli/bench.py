@@ -15,6 +15,7 @@ from terl_rt.cli.options import (
     json_option,
     open_policy,
     policy_option,
+    progressbar,
     resolve_scenarios,
     scenario_option,
     scenarios_option,
@@ -74,7 +75,7 @@ def sim(scenario, steps: int, num_envs: int, seed: int, as_json: bool) -> None:
         f"placing {num_envs} world(s) of {scenario.name} ({scenario.pursuers} pursuers each), then "
         f"{SIM_WARMUP} untimed and {steps} timed batch steps", err=True,
     )
-    with click.progressbar(
+    with progressbar(
         length=SIM_WARMUP + steps, label="bench sim", file=sys.stderr, show_pos=True, show_eta=True,
     ) as bar:
         result = simulator_speed(scenario, steps, num_envs=num_envs, seed=seed, progress=bar.update)
@@ -101,7 +102,7 @@ def scaling(steps: int, as_json: bool) -> None:
       terl-rt bench scaling --steps 50 --json
     """
     rows = []
-    with click.progressbar(SCALING_PURSUERS, label="scaling", file=sys.stderr) as counts:
+    with progressbar(SCALING_PURSUERS, label="scaling", file=sys.stderr) as counts:
         for pursuers in counts:
             rows.append(simulator_speed(scaling_scenario(pursuers), steps).to_dict())
     if as_json:
@@ -261,7 +262,7 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
     policy = open_policy(policy_path, threads=1)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = []
-    with click.progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
+    with progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
         for workers in counts:
             try:
                 rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)

@@ -22,7 +22,6 @@ from terl_rt.cli.options import (
     policy_option,
     policy_threads,
     resolve_scenarios,
-    run_backend,
     scenario_file_option,
     scenarios_option,
     seed_option,
@@ -34,17 +33,17 @@ from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA, ScenarioResult
 from terl_rt.evaluation.stats import format_interval
 from terl_rt.files import atomic_output
-from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.contract import META_CONTRACT, META_TRAINING_STEPS
-from terl_rt.policy.onnx_policy import policy_info
 
+TABLE_WIDTH = 100
+"""Columns of the table at most; every episode, and travel time with failures counted at
+the step limit, are in --json and --csv."""
 HEADER = (
-    f"{'scenario':<14}{'episodes':>9}{'success':>9} {'95 % CI':<13}{'travel, successes (s)':>22} {'95 % CI':<15}"
-    f"{'travel, failures at limit (s)':>30} {'95 % CI':<15}{'collision':>10} {'95 % CI':<15}{'steps':>8}{'wall (s)':>10}"
+    f"{'scenario':<14}{'episodes':>9} {'success [95 % CI]':<18}{'travel, successes (s)':<22}"
+    f"{'collision ratio':<20}{'steps':>7}{'wall (s)':>9}"
 )
-"""Success rate with its exact (Clopper-Pearson) interval; travel time over the successful
-episodes and over every episode with failures counted at the step limit, collision ratio,
-each mean with its bootstrap interval."""
+"""Success rate with its exact (Clopper-Pearson) interval; mean travel time over the
+successful episodes and mean collision ratio, each with its bootstrap interval."""
 
 CSV_COLUMNS = (
     "scenario", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
@@ -54,13 +53,14 @@ CSV_COLUMNS = (
 
 
 def _row(result: ScenarioResult) -> str:
+    """The table's row of `result`, in HEADER's columns."""
     ci = result.ci95()
+    success = f"{result.success_rate:.2f} {format_interval(ci['success_rate'], 2)}"
+    travel = f"{result.travel_time_s_success_mean:.1f} {format_interval(ci['travel_time_s_success'], 1)}"
+    collision = f"{result.collision_ratio_mean:.3f} {format_interval(ci['collision_ratio'], 3)}"
     return (
-        f"{result.name:<14}{result.episodes:>9}{result.success_rate:>9.2f} {format_interval(ci['success_rate'], 2):<13}"
-        f"{result.travel_time_s_success_mean:>22.1f} {format_interval(ci['travel_time_s_success'], 1):<15}"
-        f"{result.travel_time_s_limit_mean:>30.1f} {format_interval(ci['travel_time_s_limit'], 1):<15}"
-        f"{result.collision_ratio_mean:>10.3f} {format_interval(ci['collision_ratio'], 3):<15}"
-        f"{result.steps_mean:>8.1f}{result.wall_s:>10.1f}"
+        f"{result.name:<14}{result.episodes:>9} {success:<18}{travel:<22}{collision:<20}"
+        f"{result.steps_mean:>7.1f}{result.wall_s:>9.1f}"
     )
 
 
@@ -118,9 +118,10 @@ def eval_command(
     policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, log_path,
     as_json, csv_path, threads, force,
 ) -> None:
-    """Evaluate a policy: success rate, travel time (s, mean ± std), collision ratio,
-    steps and wall time per scenario, with 95 % bootstrap confidence intervals over the
-    episodes (fixed seed). Episode k of a scenario runs with seed + k, so any episode
+    """Evaluate a policy: success rate, travel time (s) over the successful episodes,
+    collision ratio, steps and wall time per scenario, with 95 % confidence intervals over
+    the episodes (exact for the success rate, bootstrap with a fixed seed for the means),
+    in a table of 100 columns. Episode k of a scenario runs with seed + k, so any episode
     can be run again alone. A progress bar with an ETA goes to stderr. --json prints
     every episode too (seed, outcome, steps, collisions, captures, return), the step
     limit, the terl-rt and policy versions and the results' schema version. An existing --log or --csv file is replaced only
@@ -147,16 +148,11 @@ def eval_command(
     for option, path in (("--log", log_path), ("--csv", csv_path)):
         if path is not None:  # the default policy too
             check_output(path, option, [("--policy", policy.path)], force)
-    info = policy_info(policy)
-    with run_backend(backend, workers, address, threads) as runner:
-        log = EpisodeLogWriter(Path(log_path), info, staged=True, replace=force) if log_path else None
-        try:
-            results = evaluate_with_progress(
-                policy, scenarios, episodes, seed, max_steps=max_steps, log=log, backend=runner,
-            )
-        finally:
-            if log is not None:
-                log.close()
+    evaluation = evaluate_with_progress(
+        policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
+        backend=backend, address=address, threads=threads,
+    )
+    results, info = list(evaluation.results), evaluation.policy
 
     # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
@@ -177,7 +173,7 @@ def eval_command(
             write_csv(staging, results, info)
     if as_json:
         return
-    if log is not None:
-        click.echo(f"log: {log.path} ({log.episodes_written} episodes)")
+    if evaluation.log_path is not None:
+        click.echo(f"log: {evaluation.log_path} ({evaluation.logged_episodes} episodes)")
     if csv_path is not None:
         click.echo(f"csv: {csv_path} ({sum(r.episodes for r in results)} episodes)")

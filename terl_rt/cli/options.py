@@ -2,29 +2,23 @@
 
 from __future__ import annotations
 
-import importlib.resources
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import click
 
-import terl_rt
+from terl_rt.command_line import address_option  # noqa: F401 (shared with python -m training)
 from terl_rt.evaluation.backends import BACKENDS, RayMissing, open_backend
-from terl_rt.evaluation.episodes import ScenarioResult, evaluate_policy
+from terl_rt.evaluation.episodes import Progress
+from terl_rt.evaluation.evaluate import Evaluation, evaluate
 from terl_rt.evaluation.runs import Backend
-from terl_rt.logs.writer import EpisodeLogWriter
-from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy
+from terl_rt.policy import shipped
+from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.policy.shipped import DEFAULT_POLICY, NoShippedPolicy
 from terl_rt.sim.scenario import PAPER_SUITE, SCENARIO_LIMITS, Scenario
-
-DEFAULT_POLICY = Path("exported") / "terl.onnx"
-"""The default policy, relative to the repository checkout (or the working directory)."""
-PACKAGED_POLICY = ("terl_rt.policy", "default/terl.onnx")
-"""(package, resource) of the copy of the default policy installed with terl-rt: what an
-installed terl-rt uses away from a checkout (tests/test_package.py keeps it identical to
-exported/terl.onnx)."""
-
 
 MAX_SEED = 2**62
 """largest --seed: seed + k stays a 64-bit integer for any number of episodes."""
@@ -69,39 +63,13 @@ def _scenario(ctx: click.Context, param: click.Parameter, value: str | None) -> 
     return None if value is None else Scenario.preset(value)
 
 
-def packaged_policy_path() -> Path | None:
-    """The default policy installed inside the terl_rt package, None when it is absent."""
-    package, resource = PACKAGED_POLICY
-    try:
-        path = importlib.resources.files(package).joinpath(resource)
-    except ModuleNotFoundError:
-        return None
-    # Installed packages are plain folders (setuptools does not zip them): a real path.
-    return Path(str(path)) if path.is_file() else None
-
-
-def default_policy_path() -> Path:
-    """exported/terl.onnx of the checkout terl_rt was imported from, else of the working
-    directory, else the copy installed with the package; BadInput when none exists."""
-    checkout = Path(terl_rt.__file__).resolve().parents[1] / DEFAULT_POLICY
-    for candidate in (checkout, Path.cwd() / DEFAULT_POLICY):
-        if candidate.is_file():
-            return candidate
-    packaged = packaged_policy_path()
-    if packaged is not None:
-        return packaged
-    raise BadInput(f"no policy at {DEFAULT_POLICY} yet; pass --policy")
-
-
 def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
-    """Open `path` (None: the default policy); contract refusals name the file."""
-    resolved = default_policy_path() if path is None else Path(path)
+    """Open the policy file `path` (None: the default policy, `terl_rt.policy.shipped`);
+    contract refusals name the file."""
     try:
-        return OnnxPolicy(resolved, threads=threads)
-    except ContractError as error:
-        if str(resolved) in str(error):
-            raise
-        raise ContractError(f"{resolved}: {error}") from error
+        return shipped.open_policy(None if path is None else Path(path), threads=threads)
+    except NoShippedPolicy as error:
+        raise BadInput(f"{error}; pass --policy") from None
 
 
 def policy_files(given: tuple[str, ...]) -> list[str | None]:
@@ -144,12 +112,17 @@ def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: 
     return [Scenario.preset(name) for name in (names or ("small-15",))]
 
 
+def check_address(backend: str, address: str | None) -> None:
+    """BadInput for an --address without --backend ray."""
+    if address is not None and backend != "ray":
+        raise BadInput("--address names a Ray cluster; pass --backend ray with it")
+
+
 def run_backend(name: str, workers: int | None, address: str | None, threads: int | None) -> Backend:
     """The backend of --backend, --workers, --address and --threads (`open_backend`), ready
     to run; a missing Ray or a misplaced --address is BadInput (a cluster that cannot be
     reached is a BackendError, which the terl-rt group prints as one line too)."""
-    if address is not None and name != "ray":
-        raise BadInput("--address names a Ray cluster; pass --backend ray with it")
+    check_address(name, address)
     try:
         return open_backend(name, workers, address, threads)
     except RayMissing as error:
@@ -163,30 +136,42 @@ def policy_threads(backend: str, workers: int | None, threads: int | None) -> in
     return threads if backend == "local" and (workers or 1) == 1 else None
 
 
+def progressbar(*args: Any, **kwargs: Any) -> Any:
+    """click.progressbar (its arguments; file: stderr unless given), hidden where that file is
+    no terminal (a log file, a pipe), where it would print its label alone, without a bar."""
+    kwargs.setdefault("file", sys.stderr)
+    return click.progressbar(*args, hidden=not kwargs["file"].isatty(), **kwargs)
+
+
+@contextmanager
+def progress_bar(scenario: Scenario, episodes: int) -> Iterator[Progress]:
+    """A progress bar on stderr for one scenario's episodes (`terl_rt.evaluate`'s progress)."""
+    with progressbar(length=episodes, label=f"{scenario.name:<14}", show_pos=True, show_eta=True) as bar:
+        yield lambda index, metrics: bar.update(1)
+
+
 def evaluate_with_progress(
     policy: OnnxPolicy,
     scenarios: list[Scenario],
     episodes: int,
     seed: int,
     max_steps: int | None = None,
-    workers: int = 1,
-    log: EpisodeLogWriter | None = None,
+    log: str | None = None,
+    replace_log: bool = True,
+    workers: int | None = None,
+    backend: Backend | str = "local",
+    address: str | None = None,
     threads: int | None = None,
-    backend: Backend | None = None,
-) -> list[ScenarioResult]:
-    """`terl_rt.evaluation.episodes.evaluate_policy` on each scenario in turn, with a progress bar per
-    scenario on stderr; the arguments are evaluate_policy's."""
-    results = []
-    for scenario in scenarios:
-        with click.progressbar(
-            length=episodes, label=f"{scenario.name:<14}", file=sys.stderr,
-            show_pos=True, show_eta=True,
-        ) as bar:
-            results.append(evaluate_policy(
-                policy, scenario, episodes, seed, max_steps=max_steps, workers=workers,
-                log_path=log, progress=lambda index, metrics: bar.update(1), threads=threads, backend=backend,
-            ))
-    return results
+) -> Evaluation:
+    """`terl_rt.evaluate` with a progress bar per scenario on stderr; the arguments are
+    evaluate's. A missing Ray or a misplaced --address is BadInput."""
+    if isinstance(backend, str):
+        check_address(backend, address)
+    try:
+        return evaluate(policy, scenarios, episodes, seed, max_steps=max_steps, log=log, replace_log=replace_log,
+                        workers=workers, backend=backend, address=address, threads=threads, progress=progress_bar)
+    except RayMissing as error:
+        raise BadInput(str(error)) from None
 
 
 scenario_option = click.option(
@@ -199,7 +184,7 @@ scenarios_option = click.option(
 )
 scenario_file_option = click.option(
     "--scenario-file", type=str, default=None, metavar="FILE",
-    help="A JSON scenario file instead of presets: the form `terl-rt scenarios --json` prints for each preset "
+    help="A JSON scenario file instead of presets: the form `terl-rt scenarios --json NAME` prints for a preset "
     "(the terl-rt repository's docs/world.md section 12).",
 )
 suite_option = click.option(
@@ -249,12 +234,6 @@ backend_option = click.option(
     "--backend", type=click.Choice(BACKENDS), default="local", show_default=True,
     help="Where the episodes run: local (this machine) or ray (Ray tasks: a local Ray instance, "
     "or the cluster at --address; pip install 'terl-rt[ray]'). Results and logs are the same.",
-)
-address_option = click.option(
-    "--address", type=str, default=None, metavar="ADDR",
-    help="The Ray cluster to join with --backend ray: HOST:PORT of its head (what `ray start --head` "
-    "prints) or auto (RAY_ADDRESS, or the cluster this machine belongs to) [default: start a local "
-    "Ray instance].",
 )
 log_option = click.option(
     "--log", "log_path", type=str, default=None, metavar="FILE.mcap",

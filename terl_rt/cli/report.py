@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import json
 import shlex
-from dataclasses import dataclass
-from datetime import datetime, timezone
-from pathlib import Path
 import textwrap
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
 
 import click
 
@@ -33,10 +34,11 @@ from terl_rt.cli.options import (
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
-from terl_rt.evaluation import comparison, seed_comparison, seed_comparison_files
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.figures import MatplotlibMissing, require_matplotlib
-from terl_rt.evaluation.report import (
+from terl_rt.files import atomic_outputs
+from terl_rt.paper import seed_comparison
+from terl_rt.paper.figures import MatplotlibMissing, require_matplotlib
+from terl_rt.paper.report import (
     FIGURE_NAME,
     MARKDOWN_NAME,
     REPORT_SUITE,
@@ -46,12 +48,10 @@ from terl_rt.evaluation.report import (
     where_it_stands,
     write_report,
 )
-from terl_rt.evaluation.runs import Backend
-from terl_rt.evaluation.saved_results import SavedResults
-from terl_rt.files import atomic_outputs
-from terl_rt.policy.contract import META_METHOD, META_SEED
+from terl_rt.paper.runner import METHOD_FILES, SEED_FILES, ComparisonRunner, over_seeds, seeds_in_paper_order
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.sim.scenario import Scenario
+
 
 def command_line(
     policy_paths: tuple[str, ...],
@@ -194,10 +194,7 @@ def report_command(
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
         run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
                             address, threads, out_dir, keep_progress, as_json, force, command)
-        if beyond or over_seeds(policies):
-            compare_seeds(policies, beyond, run)
-        else:
-            compare_policies(policies, run)
+        compare(policies, beyond, run)
         return
     if keep_progress:
         raise BadInput("--keep-progress: only a comparison (several policies, or --beyond) keeps its evaluations")
@@ -206,8 +203,8 @@ def report_command(
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
-    with run_backend(backend, workers, address, threads) as runner:
-        results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, backend=runner)
+    results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers,
+                                     backend=backend, address=address, threads=threads).results
     info = policy_info(policy)
     paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
     # The results reach the terminal before any file is written: a full disk cannot lose them.
@@ -228,15 +225,6 @@ def report_command(
         click.echo(f"wrote {paths.markdown} and {paths.figure}")
 
 
-def over_seeds(policies: list[OnnxPolicy]) -> bool:
-    """Whether several policies are compared over training seeds: one carries terl.method
-    or terl.seed, or two are of one method."""
-    methods = [comparison.method_name(policy.name) for policy in policies]
-    return len(set(methods)) < len(methods) or any(
-        META_METHOD in policy.metadata or META_SEED in policy.metadata for policy in policies
-    )
-
-
 @dataclass(frozen=True)
 class ComparisonRun:
     """The options of a `terl-rt report` that compares several policies, as given."""
@@ -253,128 +241,54 @@ class ComparisonRun:
     threads: int | None
     out_dir: Path
     keep_progress: bool
-    """keep `saved` once the files are written (`finish`)."""
+    """keep the runner's saved results once the files are written."""
     as_json: bool
     force: bool
     command: str
     """the command line, as the written files quote it."""
 
-    def check_outputs(self, names: tuple[str, ...], policies: list[OnnxPolicy]) -> None:
-        """Refuse to replace existing output files without --force, naming the policies."""
-        for name in names:
-            check_output(self.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], self.force)
+    @contextmanager
+    def runner(self) -> Iterator[ComparisonRunner]:
+        """The resumable runner of these options: its evaluations on their backend, each with a
+        progress bar, its lines on stderr."""
+        with run_backend(self.backend, self.workers, self.address, self.threads) as backend:
+            def evaluate(policy: OnnxPolicy, scenario: Scenario, episodes: int) -> ScenarioResult:
+                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=backend).results
+                return result
 
-    @property
-    def saved(self) -> SavedResults:
-        """Where each (policy, scenario) result is kept as it finishes, until the outputs are written."""
-        return SavedResults(self.out_dir / PROGRESS_FOLDER)
-
-    def finish(self) -> None:
-        """The files are written: remove `saved`, unless the run keeps it."""
-        if not self.keep_progress:
-            self.saved.remove()
-
-    def note_saved(self) -> None:
-        """Say on stderr how many results an earlier, cut-off run of the command left."""
-        if count := self.saved.count():
-            click.echo(f"{count} results of an earlier run in {self.saved.folder}: those evaluations are read back, "
-                       "not run again", err=True)
-
-    def evaluate(self, runner: Backend, policy: OnnxPolicy, scenarios: list[Scenario],
-                 episodes: int | None = None) -> list[ScenarioResult]:
-        """One policy's results on `scenarios` (`episodes` each, default the run's), with a
-        progress bar, on `runner`: each saved as it finishes, or read back where an earlier run
-        of the command saved it (`saved`)."""
-        episodes = episodes or self.episodes
-        results = []
-        for scenario in scenarios:
-            if self.max_steps is not None:
-                scenario = scenario.replace(max_steps=self.max_steps)
-            result = self.saved.load(policy.sha256, scenario, episodes, self.seed)
-            if result is None:
-                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=runner)
-                self.saved.save(policy.sha256, scenario, result)
-            else:
-                click.echo(f"{scenario.name:<14} {episodes} episodes read back from {self.saved.folder}", err=True)
-            results.append(result)
-        return results
-
-    def backend_runner(self) -> Backend:
-        """The evaluation backend of these options, as a context manager."""
-        return run_backend(self.backend, self.workers, self.address, self.threads)
+            yield ComparisonRunner(self.out_dir, self.seed, self.max_steps, evaluate, lambda line: click.echo(line, err=True))
 
 
-PROGRESS_FOLDER = ".report-progress"
-"""The folder in --out that keeps a comparison's finished evaluations until its files are written."""
-
-
-def compare_policies(policies: list[OnnxPolicy], run: ComparisonRun) -> None:
-    """`terl-rt report` with several policies, one a method (`over_seeds` is false): evaluate
-    each on the scenarios in turn, in the paper's order of methods, and write
-    comparison.md, .png and .json."""
-    outputs = (comparison.MARKDOWN_NAME, comparison.FIGURE_NAME, comparison.JSON_NAME)
-    run.check_outputs(outputs, policies)
+def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> None:
+    """`terl-rt report` with several policies (or --beyond): over training seeds where
+    `over_seeds` says so or with `beyond`, else one policy a method; evaluate each in the
+    paper's order of methods (then by seed), print the claims' verdicts and write the files."""
+    seeds = beyond or over_seeds(policies)
+    files = SEED_FILES if seeds else METHOD_FILES
+    for name in files.values():
+        check_output(run.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], run.force)
     scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
-    methods = [(comparison.method_name(policy.name), policy) for policy in policies]
-    method_runs = []
-    run.note_saved()
-    with run.backend_runner() as runner:
-        for method, policy in sorted(methods, key=lambda pair: comparison.paper_order(pair[0])):
-            click.echo(f"{method}: {policy.path}", err=True)
-            results = run.evaluate(runner, policy, scenarios)
-            method_runs.append(comparison.MethodRun(method, policy_info(policy), tuple(results)))
-    date = datetime.now(timezone.utc)
-    method_runs.sort(key=lambda method_run: comparison.paper_order(method_run.method))
-    data = comparison.comparison_dict(method_runs, run.command, date)
-    paths = dict(zip(("markdown", "figure", "json"), (str(run.out_dir / name) for name in outputs)))
+    if seeds:
+        try:
+            named = seeds_in_paper_order(policies)
+        except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
+            raise BadInput(f"--policy: {error}") from error
+        worlds = seed_comparison.beyond_scenarios() if beyond else []
+        with run.runner() as runner:
+            finished = runner.compare_seeds(named, scenarios, run.episodes, worlds, run.beyond_episodes, run.command)
+    else:
+        with run.runner() as runner:
+            finished = runner.compare_methods(policies, scenarios, run.episodes, run.command)
+    paths = {role: str(run.out_dir / name) for role, name in finished.files.items()}
     # The results reach the terminal before any file is written: a full disk cannot lose them.
     if run.as_json:
-        click.echo(json.dumps({**data, "files": paths}))
+        click.echo(json.dumps({**finished.data, "files": paths}))
     else:
-        for check in data["claims"]:
-            click.echo(f"{check['verdict']:<19} {check['claim']}")
-    with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
-        comparison.write_comparison(method_runs, staging, run.command, date)
-    run.finish()
+        for verdict, claim in finished.claims:
+            click.echo(f"{verdict:<19} {claim}")
+    with atomic_outputs(run.out_dir, tuple(finished.files.values()), replace=run.force) as staging:
+        finished.write(staging)
+    runner.finish(run.keep_progress)
     if not run.as_json:
-        click.echo(f"wrote {paths['markdown']}, {paths['figure']} and {paths['json']}")
-
-
-def compare_seeds(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> None:
-    """`terl-rt report` over training seeds: name each policy's method and seed (refusing
-    two that cannot be told apart), evaluate each in the paper's order of methods, then by
-    seed, on the scenarios (and the worlds beyond the paper with `beyond`), and write
-    seed_comparison_files.OUTPUT_NAMES."""
-    outputs = seed_comparison_files.OUTPUT_NAMES
-    run.check_outputs(outputs, policies)
-    try:
-        named = [(*seed_comparison.policy_identity(policy.metadata), policy) for policy in policies]
-        seed_comparison.check_seeds([(method, run_seed, str(policy.path)) for method, run_seed, policy in named])
-    except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
-        raise BadInput(f"--policy: {error}") from error
-    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
-    worlds = seed_comparison.beyond_scenarios() if beyond else []
-    named.sort(key=lambda item: (comparison.paper_order(item[0]), -1 if item[1] is None else item[1]))
-    seed_runs = []
-    run.note_saved()
-    with run.backend_runner() as runner:
-        for number, (method, run_seed, policy) in enumerate(named, start=1):
-            click.echo(f"[{number}/{len(named)}] {method} seed {run_seed}: {policy.path}", err=True)
-            results = run.evaluate(runner, policy, scenarios)
-            results += run.evaluate(runner, policy, worlds, run.beyond_episodes)
-            seed_runs.append(seed_comparison.SeedRun(method, run_seed, policy_info(policy), tuple(results)))
-    date = datetime.now(timezone.utc)
-    stats = seed_comparison.seed_statistics(seed_runs)
-    paths = dict(zip(("figure", "markdown", "json", "marl_eval"), (str(run.out_dir / name) for name in outputs)))
-    # The results reach the terminal before any file is written: a full disk cannot lose them.
-    if run.as_json:
-        click.echo(json.dumps({**seed_comparison_files.seed_comparison_dict(seed_runs, stats, run.command, date),
-                               "files": paths}))
-    else:
-        for check in stats.claims:
-            click.echo(f"{check.verdict:<19} {check.claim}")
-    with atomic_outputs(run.out_dir, outputs, replace=run.force) as staging:
-        seed_comparison_files.write_seed_comparison(seed_runs, staging, run.command, date, stats)
-    run.finish()
-    if not run.as_json:
-        click.echo(f"wrote {paths['markdown']}, {paths['figure']}, {paths['json']} and {paths['marl_eval']}")
+        wrote = [paths[role] for role in ("markdown", "figure", "json", "marl_eval") if role in paths]
+        click.echo(f"wrote {', '.join(wrote[:-1])} and {wrote[-1]}")

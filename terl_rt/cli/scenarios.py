@@ -11,18 +11,25 @@ from terl_rt.sim.scenario import PAPER_SUITE, PUBLISHED_SMALL_SUITE, Scenario
 
 
 @click.command()
+@click.argument("name", required=False, metavar="[NAME]")
 @json_option
-def scenarios(as_json: bool) -> None:
+def scenarios(name: str | None, as_json: bool) -> None:
     """List the preset scenarios: the paper's 10 evaluation presets (`--suite paper`),
     the 3 of the authors' released small-scale evaluation config (small-published-*,
     policy.md section 2) and the 5 training curriculum stages. Arena sizes in metres.
+    With NAME, that preset alone; with NAME and --json, it as a scenario file that
+    --scenario-file reads (docs/world.md section 12): a start for one of your own.
 
     \b
     Examples:
       terl-rt scenarios
-      terl-rt scenarios --json        # each preset in the form --scenario-file reads
+      terl-rt scenarios --json        # every preset, and the suites
+      terl-rt scenarios --json small-15 > my_world.json && terl-rt eval --scenario-file my_world.json
     """
-    rows = [Scenario.preset(name).to_dict() for name in Scenario.presets()]
+    if name is not None and as_json:
+        click.echo(json.dumps(Scenario.preset(name).to_dict(), indent=2))
+        return
+    rows = [Scenario.preset(each).to_dict() for each in ([name] if name else Scenario.presets())]
     if as_json:
         click.echo(json.dumps({
             "scenarios": rows, "paper_suite": list(PAPER_SUITE), "published_small_suite": list(PUBLISHED_SMALL_SUITE),

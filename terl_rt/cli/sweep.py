@@ -20,6 +20,7 @@ from terl_rt.cli.options import (
     open_policies,
     policies_option,
     policy_threads,
+    progressbar,
     resolve_scenarios,
     run_backend,
     scenario_file_option,
@@ -104,7 +105,7 @@ def sweep_command(
     for name in TABLE_FILES:
         check_output(out_dir / name, "--out", inputs, force)
     total = len(policies) * len(scenarios) * episodes
-    with run_backend(backend, workers, address, threads) as runner, click.progressbar(
+    with run_backend(backend, workers, address, threads) as runner, progressbar(
         length=total, label="sweep", file=sys.stderr, show_pos=True, show_eta=True,
     ) as bar:
         sweep = run_sweep(

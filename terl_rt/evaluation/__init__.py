@@ -1,4 +1,4 @@
-"""Measuring policies and the simulator: evaluation episodes and where they run (this
-process, worker processes or Ray tasks), sweeps over policies and scenarios, speed
-benchmarks, the paper's published numbers, the report that sets a policy against them
-and the comparison that sets several against the paper's."""
+"""Running a policy's episodes: evaluation episodes and where they run (this process, worker
+processes or Ray tasks), their statistics, sweeps over policies and scenarios, speed
+benchmarks and optimised variants of a policy. What sets results against the paper is
+terl_rt.paper."""

@@ -15,15 +15,14 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 from terl_rt.evaluation.play import BATCH_ENVS
-from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
-from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
+from terl_rt.policy.protocol import Policy
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario
 
@@ -139,7 +138,7 @@ def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
 
 
 def evaluate_policy(
-    policy: OnnxPolicy | str | os.PathLike,
+    policy: Policy | str | os.PathLike,
     scenario: Scenario,
     episodes: int,
     seed: int,
@@ -151,30 +150,22 @@ def evaluate_policy(
     backend: Backend | None = None,
     envs: int = BATCH_ENVS,
 ) -> ScenarioResult:
-    """Evaluate `policy` on `episodes` episodes of `scenario`; episode k uses seed + k.
+    """`terl_rt.evaluate` on one scenario, its result: the arguments are evaluate's
+    (`log_path` its `log`, `progress` called after each episode with its index and metrics)."""
+    from terl_rt.evaluation.evaluate import evaluate  # built on this module: imported when called
 
-    max_steps overrides the scenario's step limit. backend: where the episodes run
-    (terl_rt.evaluation.backends.open_backend; the caller closes it); without one they run
-    here, or in `workers` worker processes when workers > 1, each batch running `envs`
-    episodes at once (a backend has its own). threads: onnxruntime
-    intra-op threads of a policy given as a path and of each worker's policy (workers
-    default to 1). log_path: an MCAP file to write every step to (see
-    terl_rt.logs.format), or an open EpisodeLogWriter to append to (the caller closes
-    it). Episodes are logged and reported to `progress` in episode order as they finish.
-    """
-    if isinstance(policy, (str, os.PathLike)):
-        policy = OnnxPolicy(policy, threads=threads)
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
-    if backend is None:
-        backend = LocalBackend(workers, threads, envs)
-    elif workers != 1 or envs != BATCH_ENVS:
-        raise ValueError("pass workers and envs to the backend, not to evaluate_policy as well")
-    if max_steps is not None:
-        scenario = scenario.replace(max_steps=max_steps)
+    per_scenario = None if progress is None else (lambda scenario, count: nullcontext(progress))
+    return evaluate(policy, scenario, episodes, seed, max_steps=max_steps, log=log_path, workers=workers,
+                    threads=threads, backend=backend or "local", envs=envs, progress=per_scenario).result
 
-    owns_log = log_path is not None and not isinstance(log_path, EpisodeLogWriter)
-    log = EpisodeLogWriter(Path(log_path), policy_info(policy)) if owns_log else log_path
+
+def run_scenario(
+    policy: Policy, scenario: Scenario, episodes: int, seed: int, backend: Backend,
+    log: EpisodeLogWriter | None = None, progress: Progress | None = None,
+) -> ScenarioResult:
+    """`episodes` episodes of `scenario` (its step limit in force) on `backend`, episode k
+    with seed + k; every step written to `log` and every episode reported to `progress` in
+    episode order as it finishes. Opens nothing: the caller owns the policy, backend and log."""
     specs = [EpisodeSpec(0, scenario, seed + k, k) for k in range(episodes)]
     start = time.perf_counter()
     per_episode: list[EpisodeMetrics] = []
@@ -184,11 +175,7 @@ def evaluate_policy(
         if progress is not None:
             progress(index, metrics)
 
-    try:
-        run_episodes([policy], specs, backend, log, finished)
-    finally:
-        if owns_log:
-            log.close()
+    run_episodes([policy], specs, backend, log, finished)
     return scenario_result(scenario, seed, per_episode, time.perf_counter() - start)
 
 

@@ -19,6 +19,9 @@ quantisation and transformer tools).
 
 from __future__ import annotations
 
+import contextlib
+import io
+import logging
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -35,6 +38,8 @@ from terl_rt.sim.observation import Observation
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
+
+logger = logging.getLogger(__name__)
 
 DECISION_AGREEMENT = 0.995
 """the share of recorded rows on which a variant must choose the float graph's action."""
@@ -70,6 +75,34 @@ def _int8_static(source: Path, target: Path, calibration: Sequence[Observation])
 
     quantize_static(str(source), str(target), Recorded(), quant_format=QuantFormat.QDQ, per_channel=True,
                     weight_type=QuantType.QInt8, activation_type=QuantType.QUInt8)
+
+
+def build_quietly(build: Callable[[Path, Path, Sequence[Observation]], None], source: Path, target: Path,
+                  calibration: Sequence[Observation]) -> None:
+    """`build(source, target, calibration)` with what onnxruntime's tools print (their
+    warnings, through logging, and stray prints on stdout) kept off the terminal: logged at
+    debug level here, so that `-vv` shows it."""
+    printed = io.StringIO()
+    logging.disable(logging.WARNING)
+    try:
+        with contextlib.redirect_stdout(printed):
+            build(source, target, calibration)
+    finally:
+        logging.disable(logging.NOTSET)
+        if printed.getvalue().strip():
+            logger.debug("onnxruntime's tools printed: %s", printed.getvalue().strip())
+
+
+BUILD_FAILURE_CHARS = 160
+"""A variant's build failure is reported in at most this many characters (onnxruntime's own
+messages run to a screenful)."""
+
+
+def build_failure(error: Exception) -> str:
+    """The one-line report of a variant that could not be built: the error's type and
+    message, cut to BUILD_FAILURE_CHARS."""
+    text = " ".join(f"{type(error).__name__}: {error}".split())
+    return text if len(text) <= BUILD_FAILURE_CHARS else text[: BUILD_FAILURE_CHARS - 3] + "..."
 
 
 VARIANTS: dict[str, Callable[[Path, Path, Sequence[Observation]], None]] = {
@@ -198,10 +231,10 @@ def optimize_policy(policy: OnnxPolicy, scenarios: Sequence[Scenario], episodes:
         for name in variants:
             target = Path(folder) / f"{name}.onnx"
             try:
-                VARIANTS[name](source, target, recorded)
+                build_quietly(VARIANTS[name], source, target, recorded)
                 variant = OnnxPolicy(target, threads=threads, model=target.read_bytes())
             except Exception as error:  # onnxruntime's tools raise their own types for graphs they cannot handle
-                checks.append(VariantCheck(name, False, "build", f"{type(error).__name__}: {error}"))
+                checks.append(VariantCheck(name, False, "build", build_failure(error)))
                 continue
             checks.append(check_variant(name, variant, policy, recorded, scenarios, episodes, seed))
     return checks

@@ -253,8 +253,9 @@ def action_to_control(actions) -> np.ndarray:
 class PolicyOutput:
     """What a policy computes for observations with leading shape `...`."""
 
-    q_values: np.ndarray
-    """[..., 9] float32: expected return of each pursuer action."""
+    q_values: np.ndarray | None
+    """[..., 9] float32: expected return of each pursuer action; None for a policy that
+    gives actions only (`terl_rt.policy.protocol.CallablePolicy`)."""
     target_weights: np.ndarray | None
     """[..., E] float32 target preference per evader slot (0 on padding), or None
     for models without target selection."""
@@ -446,7 +447,9 @@ def _calls(rows: int) -> list[slice]:
     return [slice(bounds[k], bounds[k + 1]) for k in range(count)]
 
 
-def policy_info(policy: OnnxPolicy) -> dict[str, Any]:
-    """What logs and reports keep of a policy: name, sha256, path (str) and metadata
-    (its metadata_props)."""
-    return {"name": policy.name, "sha256": policy.sha256, "path": str(policy.path), "metadata": policy.metadata}
+def policy_info(policy: Any) -> dict[str, Any]:
+    """What logs and reports keep of a policy (`terl_rt.policy.protocol.Policy`): name,
+    sha256, path (str) and metadata (an ONNX file's metadata_props); a policy without a file
+    (a torch network, a function) has an empty sha256 and no metadata."""
+    return {"name": policy.name, "sha256": getattr(policy, "sha256", ""), "path": str(policy.path),
+            "metadata": getattr(policy, "metadata", {})}

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from terl_rt.cli.options import address_option
+from terl_rt.command_line import address_option
 from terl_rt.evaluation.backends import BACKENDS, RAY_INSTALL_HINT
 from training.card import DEFAULT_MACHINE
 from training.cli.options import seed_list

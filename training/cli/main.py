@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from terl_rt.cli.main import TerlGroup
+from terl_rt.command_line import TerlGroup
 from training.card import CardError
 from training.cli.bench import bench_command
 from training.cli.card import card_command

@@ -23,6 +23,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from terl_rt.evaluation.episodes import ScenarioResult, scenario_result
+from terl_rt.files import atomic_output
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 
@@ -72,21 +73,22 @@ class SavedResults:
             return None
 
     def save(self, policy_sha256: str, scenario: Scenario, result: ScenarioResult) -> Path:
-        """Write `result` (of `scenario`, its step limit in force) whole or not at all: a
-        temporary file renamed into place."""
+        """Write `result` (of `scenario`, its step limit in force) whole or not at all
+        (`terl_rt.files.atomic_output`)."""
         key = self.key(policy_sha256, scenario, result.episodes, result.seed)
         path = self.path(key)
         self.folder.mkdir(parents=True, exist_ok=True)
         text = json.dumps({"key": key, "scenario": scenario.name, "wall_s": result.wall_s,
                            "per_episode": [metrics.to_dict() for metrics in result.per_episode]})
-        partial = path.with_suffix(".partial")
-        partial.write_text(text)
-        os.replace(partial, path)
+        with atomic_output(path, replace=True) as staging:
+            staging.write_text(text)
         return path
 
     def count(self) -> int:
-        """Saved evaluations in the folder."""
-        return len(list(self.folder.glob("*.json"))) if self.folder.is_dir() else 0
+        """Saved evaluations in the folder (not the hidden temporary file of one being written)."""
+        if not self.folder.is_dir():
+            return 0
+        return sum(not path.name.startswith(".") for path in self.folder.glob("*.json"))
 
     def remove(self) -> None:
         """Delete the folder and what it holds (once the outputs they fed are written)."""

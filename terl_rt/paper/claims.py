@@ -4,8 +4,8 @@ A claim is a list of `Comparison`s between `Measure`s (one method's mean of one 
 one report group, with its 95 % interval) or against a bound. `check_claims` checks every
 claim of `CLAIMS` on measured rows and on the paper's own tables: the verdict is the means'
 answer, and `ClaimCheck.clear` says whether the intervals give it too.
-`terl_rt.evaluation.comparison` checks them on one policy a method,
-`terl_rt.evaluation.seed_comparison` on the means over seeds.
+`terl_rt.paper.comparison` checks them on one policy a method,
+`terl_rt.paper.seed_comparison` on the means over seeds.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import operator
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 
-from terl_rt.evaluation.paper import ABLATION_TABLE, BASELINES, CC_TABLE, SCALE_GROUPS, SMALL_RELEASED, TERL
 from terl_rt.evaluation.stats import format_interval
+from terl_rt.paper.numbers import ABLATION_TABLE, BASELINES, CC_TABLE, SCALE_GROUPS, SMALL_RELEASED, TERL
 
 REPRODUCES = "reproduces"
 DOES_NOT_REPRODUCE = "does not reproduce"

@@ -1,5 +1,5 @@
 """The paper's comparison with several training seeds a method: who each policy is, and the
-aggregates over seeds (what `terl_rt.evaluation.seed_comparison_files` writes as
+aggregates over seeds (what `terl_rt.paper.seed_comparison_files` writes as
 docs/comparison.md, .png, .json and the marl-eval export).
 
 A grid ships each seed's policy as exported/comparison/<method>-seed-<S>.onnx, its
@@ -11,7 +11,7 @@ one seed of the method its `terl.model` names, its seed read from `terl.training
 `seed_statistics` takes one `SeedRun` a policy (its evaluations on the same scenarios) and
 computes, per method and scale group, the mean and the interquartile mean over seeds of
 each metric's per-(seed, preset) means with 95 % stratified bootstrap intervals, and the
-probability that TERL beats each other method (`terl_rt.evaluation.seed_stats`); and the
+probability that TERL beats each other method (`terl_rt.paper.seed_stats`); and the
 paper's claims judged on those means (`seed_claim_checks`).
 
 Beyond the paper, `beyond_scenarios` grows large-80's world to BEYOND_PURSUERS pursuers as
@@ -27,13 +27,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from terl_rt.evaluation import seed_stats
-from terl_rt.evaluation.claims import NOT_MEASURED, ClaimCheck, check_claims
-from terl_rt.evaluation.comparison import ComparisonError, method_name, paper_order
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.paper import REPORT_GROUPS, TERL, scale_group
 from terl_rt.evaluation.speed import scaling_scenario
-from terl_rt.evaluation.stats import travel_times
+from terl_rt.evaluation.stats import success_interval, travel_times
+from terl_rt.paper import seed_stats
+from terl_rt.paper.claims import NOT_MEASURED, ClaimCheck, check_claims
+from terl_rt.paper.comparison import ComparisonError, method_name, paper_order
+from terl_rt.paper.numbers import REPORT_GROUPS, TERL, scale_group
 from terl_rt.policy.contract import META_METHOD, META_MODEL, META_SEED, META_TRAINING_CONFIG
 from terl_rt.sim.scenario import Scenario
 
@@ -137,7 +137,11 @@ class Aggregate:
     values: dict
     """aggregate ('mean', 'iqm') -> metric (METRICS) -> value."""
     ci95: dict
-    """aggregate -> metric -> (low, high): 95 % stratified bootstrap interval."""
+    """aggregate -> metric -> (low, high): 95 % stratified bootstrap interval, but for the
+    success rate where `success_exact`."""
+    success_exact: bool = False
+    """the success rate's intervals are the exact (Clopper-Pearson) one over every episode of
+    the group (`exact_success_interval`): one seed, or every episode alike."""
 
     def to_dict(self) -> dict:
         return {**asdict(self), "presets": list(self.presets),
@@ -221,11 +225,15 @@ def seed_statistics(runs: Sequence[SeedRun]) -> SeedStatistics:
             if group not in presets[method]:
                 continue
             values, intervals = seed_stats.aggregates_with_intervals(presets[method][group], list(AGGREGATES.values()))
+            ci95 = {name: _intervals_by_metric(intervals[a]) for a, name in enumerate(AGGREGATES)}
+            exact = exact_success_interval(presets[method][group])
+            if exact is not None:
+                for by_metric in ci95.values():
+                    by_metric["success_rate"] = exact
             rows.append(Aggregate(
                 method, group, len(seed_runs), tuple(r.name for r in seed_runs[0].results if group_of(r.name) == group),
                 min(p.shape[1] for p in presets[method][group]),
-                {name: _by_metric(values[a]) for a, name in enumerate(AGGREGATES)},
-                {name: _intervals_by_metric(intervals[a]) for a, name in enumerate(AGGREGATES)},
+                {name: _by_metric(values[a]) for a, name in enumerate(AGGREGATES)}, ci95, exact is not None,
             ))
         terl = presets.get(TERL, {}).get(group)
         for method in by_method:
@@ -235,6 +243,18 @@ def seed_statistics(runs: Sequence[SeedRun]) -> SeedStatistics:
             value, interval = seed_stats.improvement_with_interval(terl, other, HIGHER_IS_BETTER)
             better.append(Improvement(method, group, _by_metric(value), _intervals_by_metric(interval)))
     return SeedStatistics(tuple(rows), tuple(better), tuple(seed_claim_checks(rows)))
+
+
+def exact_success_interval(presets: Sequence[np.ndarray]) -> tuple[float, float] | None:
+    """The exact (Clopper-Pearson) 95 % interval of the success rate over every episode of
+    `presets` ([P] arrays [S, K, Q]) where the stratified bootstrap cannot move (one seed: no
+    seeds to draw again; every episode alike: nothing to draw but that), None elsewhere. The
+    success rate's mean (and IQM) is then the pooled rate: a group's presets run alike many
+    episodes, and with one seed or every score equal nothing is trimmed."""
+    success = np.concatenate([data[..., METRICS.index("success_rate")].ravel() for data in presets])
+    if presets[0].shape[0] > 1 and 0 < success.sum() < success.size:
+        return None
+    return success_interval(int(success.sum()), success.size)
 
 
 def _by_metric(values: np.ndarray) -> dict[str, float]:

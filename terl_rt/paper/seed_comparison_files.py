@@ -1,8 +1,8 @@
 """The files of a comparison over training seeds: docs/comparison.md (the aggregates, the
 claims, Tables III and IV beside the paper's), comparison.png (the paper's Fig. 3 as bars,
-`terl_rt.evaluation.seed_figure`), comparison.json (every episode and every statistic) and
-comparison-marl-eval.json (every episode in marl-eval's format, `terl_rt.evaluation.marl_eval`),
-from the `SeedRun`s and `SeedStatistics` of `terl_rt.evaluation.seed_comparison`.
+`terl_rt.paper.seed_figure`), comparison.json (every episode and every statistic) and
+comparison-marl-eval.json (every episode in marl-eval's format, `terl_rt.paper.marl_eval`),
+from the `SeedRun`s and `SeedStatistics` of `terl_rt.paper.seed_comparison`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from terl_rt.evaluation import seed_stats
-from terl_rt.evaluation.marl_eval import marl_eval_dict
-from terl_rt.evaluation.paper import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
-from terl_rt.evaluation.figures import require_matplotlib
-from terl_rt.evaluation.report import comparability_note, join_words, run_settings, training_steps_text
-from terl_rt.evaluation.seed_comparison import (
+from terl_rt.evaluation.stats import format_interval
+from terl_rt.paper import seed_stats
+from terl_rt.paper.figures import require_matplotlib
+from terl_rt.paper.marl_eval import marl_eval_dict
+from terl_rt.paper.numbers import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
+from terl_rt.paper.report import comparability_note, join_words, run_settings, training_steps_text
+from terl_rt.paper.seed_comparison import (
     AGGREGATES,
     BEYOND_PURSUERS,
     METRICS,
@@ -32,8 +33,7 @@ from terl_rt.evaluation.seed_comparison import (
     method_runs,
     seed_statistics,
 )
-from terl_rt.evaluation.seed_figure import plot_seed_comparison
-from terl_rt.evaluation.stats import format_interval
+from terl_rt.paper.seed_figure import plot_seed_comparison
 from terl_rt.policy.contract import META_TRAINING_STEPS
 
 MARKDOWN_NAME = "comparison.md"
@@ -57,12 +57,20 @@ _CELL = {"success_rate": (2, ""), "travel_time_s": (1, ""), "travel_time_s_limit
 """metric -> (decimals, unit) in the tables."""
 
 
+EXACT_MARK = " †"
+"""Marks a success rate whose interval is the exact one over its episodes (`Aggregate.success_exact`)."""
+EXACT_NOTE = ("† the success rate's exact (Clopper-Pearson) interval over every episode of the cell: with one "
+              "seed, or every episode alike, the bootstrap has nothing to draw again.")
+"""What EXACT_MARK means, said under the figure's description where a cell holds one."""
+
+
 def _cell(row: Aggregate, aggregate: str, metric: str) -> str:
     digits, _ = _CELL[metric]
     value, interval = row.values[aggregate][metric], row.ci95[aggregate][metric]
     if math.isnan(value):
         return "—"
-    return f"{value:.{digits}f} {format_interval(interval, digits)}"
+    exact = EXACT_MARK if metric == "success_rate" and row.success_exact else ""
+    return f"{value:.{digits}f} {format_interval(interval, digits)}{exact}"
 
 
 def _paper_row(method: str, group: str) -> str:
@@ -111,7 +119,8 @@ def render_seed_markdown(
         "(seed, preset) weighing the same), the dot its interquartile mean, the error bars the mean's 95 % "
         "stratified bootstrap interval (seeds drawn again within each preset, then each drawn seed's "
         "episodes; 2,000 resamples, fixed seed), as rliable recommends (Agarwal et al. 2021). A method "
-        "that never learned on some seed keeps that seed: it is part of the method's reliability.",
+        "that never learned on some seed keeps that seed: it is part of the method's reliability."
+        + (f" {EXACT_NOTE}" if any(row.success_exact for row in rows) else ""),
         "",
         "## Claims",
         "",

@@ -3,8 +3,8 @@
 `write_report` takes the `ScenarioResult`s of `terl_rt.evaluation.episodes.evaluate_policy` and writes a
 markdown page (the policy, the command, the date; a row per preset beside the paper's
 TERL row for its scale group; a row per scale group; which of the paper's goals are
-met) and a figure in the manner of the paper's Fig. 3 (`terl_rt.evaluation.figures`).
-`terl_rt.evaluation.comparison` shares the helpers below (group summaries and the wording
+met) and a figure in the manner of the paper's Fig. 3 (`terl_rt.paper.figures`).
+`terl_rt.paper.comparison` shares the helpers below (group summaries and the wording
 of intervals, run settings and caveats).
 """
 
@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.figures import plot_results, require_matplotlib
 from terl_rt.evaluation.stats import CI_METRICS, format_interval, mean_intervals
-from terl_rt.evaluation.paper import (
+from terl_rt.paper.figures import plot_results, require_matplotlib
+from terl_rt.paper.numbers import (
     ABLATION_TABLE,
     CC_TABLE,
     GOALS,
@@ -59,7 +59,7 @@ class GroupSummary:
     """This policy's mean over the evaluated presets of one scale group (each preset weighs the same)."""
 
     group: str
-    """one of `terl_rt.evaluation.paper.REPORT_GROUPS`: 'small', 'small (released config)',
+    """one of `terl_rt.paper.numbers.REPORT_GROUPS`: 'small', 'small (released config)',
     'medium', 'large' or 'CC'."""
     presets: tuple[str, ...]
     """the group's presets that were evaluated, in the order given."""
@@ -127,7 +127,7 @@ def group_summaries(results: Sequence[ScenarioResult]) -> list[GroupSummary]:
 
 
 def goal_checks(results: Sequence[ScenarioResult]) -> list[GoalCheck]:
-    """The paper's goals (`terl_rt.evaluation.paper.GOALS`) for every evaluated report group (the
+    """The paper's goals (`terl_rt.paper.numbers.GOALS`) for every evaluated report group (the
     released small config: small scale's): success rate at or above, travel time (s) and
     collision ratio at or under the bound.
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.paper import PAPER_METHODS
 from terl_rt.evaluation.stats import travel_times
+from terl_rt.paper.numbers import PAPER_METHODS
 from terl_rt.policy.contract import META_TRAINING_STEPS
 
 ENVIRONMENT = "terl-rt"

@@ -1,7 +1,7 @@
 """The paper's Fig. 3 over training seeds: one panel a metric, the scale groups along the
 x axis, one bar a method (its mean over seeds), the interquartile mean as a dot and the
 mean's 95 % stratified bootstrap interval as error bars (the aggregates of
-`terl_rt.evaluation.seed_comparison`, drawn for `seed_comparison_files`).
+`terl_rt.paper.seed_comparison`, drawn for `seed_comparison_files`).
 
 matplotlib draws it (the `report` extra), imported only when a figure is drawn.
 """
@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
 
-from terl_rt.evaluation.figures import TRAVEL_PANEL, agg_figure_classes
+from terl_rt.paper.figures import TRAVEL_PANEL, agg_figure_classes
 
 PANELS = (("success rate", "success_rate"), (TRAVEL_PANEL, "travel_time_s_limit"), ("collision ratio", "collision_ratio"))
 """(title, metric) of each panel, as the single-seed figures draw them."""
@@ -25,7 +25,7 @@ LEGEND = "bars: mean over seeds; dots: interquartile mean; error bars: 95 % stra
 
 class AggregateRow(Protocol):
     """What a bar is drawn from: one method on one scale group over its seeds
-    (`terl_rt.evaluation.seed_comparison.Aggregate`)."""
+    (`terl_rt.paper.seed_comparison.Aggregate`)."""
 
     method: str
     group: str

@@ -14,8 +14,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.paper import PRESET_GROUPS, SCALE_GROUPS, SMALL_RELEASED, TERL_BY_GROUP, scale_group
 from terl_rt.extras import install_hint
+from terl_rt.paper.numbers import PRESET_GROUPS, SCALE_GROUPS, SMALL_RELEASED, TERL_BY_GROUP, scale_group
 from terl_rt.sim.scenario import PRESETS
 
 INSTALL_HINT = install_hint("report")

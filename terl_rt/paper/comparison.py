@@ -5,11 +5,11 @@ and with its ablations w/o RE and w/o TS (Table IV); policy.md section 4 holds i
 numbers and claims. `write_comparison` takes one `MethodRun` a policy (its evaluations
 on the same scenarios) and writes:
 
-- a figure in the form of Fig. 3 (`terl_rt.evaluation.figures.plot_comparison`);
+- a figure in the form of Fig. 3 (`terl_rt.paper.figures.plot_comparison`);
 - Table III: every method on CC beside the paper's numbers;
 - Table IV: TERL, w/o RE and w/o TS per scale group beside the paper's ablation;
 - every method per scale group;
-- the paper's claims (`terl_rt.evaluation.claims`), each checked on the measured group
+- the paper's claims (`terl_rt.paper.claims`), each checked on the measured group
   means (`claim_checks`);
 - the same as JSON, for scripts.
 
@@ -27,10 +27,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from terl_rt.evaluation.claims import ClaimCheck, check_claims, claim_metrics
 from terl_rt.evaluation.episodes import ScenarioResult
-from terl_rt.evaluation.figures import plot_comparison, require_matplotlib
-from terl_rt.evaluation.paper import (
+from terl_rt.paper.claims import ClaimCheck, check_claims, claim_metrics
+from terl_rt.paper.figures import plot_comparison, require_matplotlib
+from terl_rt.paper.numbers import (
     ABLATION_TABLE,
     ABLATIONS,
     CC_TABLE,
@@ -40,7 +40,7 @@ from terl_rt.evaluation.paper import (
     PaperResult,
     paper_group,
 )
-from terl_rt.evaluation.report import (
+from terl_rt.paper.report import (
     GroupSummary,
     ci_text,
     comparability_note,
