@@ -13,9 +13,21 @@ def main() -> None:
     """
     try:
         from terl_rt.cli.main import cli
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ImportError) as error:
+        if not _caused_by_ctrl_c(error):
+            raise
         _fail("stopped by SIGINT while starting", 130)
     cli(prog_name="terl-rt")
+
+
+def _caused_by_ctrl_c(error: BaseException | None) -> bool:
+    """True when `error` is a KeyboardInterrupt or one lies behind it (a compiled module,
+    onnxruntime's among them, reports Ctrl-C during its initialisation as an ImportError)."""
+    while error is not None:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
 
 
 def _fail(message: str, status: int) -> None:
