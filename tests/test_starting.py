@@ -1,11 +1,13 @@
 """Starting the `terl-rt` command under pressure (issue 55): Ctrl-C while it loads its
-modules ends in one line within seconds, never in a traceback. The command runs as a user
+modules, and an address-space limit (`ulimit -v`). Either ends in one line within seconds,
+never in a traceback, an abort inside a library or a hang. The command runs as a user
 runs it (`python -m terl_rt`, this checkout's terl_rt); every wait polls for the state it
 needs."""
 
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -27,13 +29,16 @@ def policy_path(tmp_path_factory) -> Path:
     return write_test_policy(tmp_path_factory.mktemp("policy") / "linear.onnx")
 
 
-def _eval(policy_path: Path, *options: str) -> subprocess.Popen:
+def _eval(policy_path: Path, *options: str, limit_bytes: int | None = None) -> subprocess.Popen:
     """`terl-rt eval` of small-11 with the test policy in a process group of its own (what a
-    terminal's Ctrl-C reaches)."""
+    terminal's Ctrl-C reaches), under an address-space limit when `limit_bytes` is given."""
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit_bytes, limit_bytes))
+
     command = [sys.executable, "-m", "terl_rt", "eval", "--policy", str(policy_path), "--scenario", "small-11",
                *options]
     return subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True, env=ENV)
+                            text=True, env=ENV, preexec_fn=None if limit_bytes is None else limit)
 
 
 def _finish(process: subprocess.Popen, limit_s: float = 60.0) -> tuple[int, str]:
@@ -89,3 +94,16 @@ def test_ctrl_c_during_a_run_in_one_process_ends_in_one_line_and_exit_130(policy
     status, stderr = _finish(process)
     assert status == 128 + signal.SIGINT, stderr[-3000:]
     assert _one_error_line(stderr) == "Error: stopped by SIGINT"
+
+
+@pytest.mark.parametrize("limit_mib, threads", [(150, None), (250, None), (350, None), (350, "64")],
+                         ids=["150-MiB", "250-MiB", "350-MiB", "350-MiB-64-policy-threads"])
+def test_under_an_address_space_limit_eval_runs_or_ends_in_one_memory_line(policy_path, limit_mib, threads):
+    """Before issue 55: a MemoryError traceback (150 MiB), an OpenBLAS abort (250 MiB), a
+    hang in scipy's OpenBLAS (350 MiB) or in onnxruntime starting 64 threads."""
+    options = ("--episodes", "2", "--max-steps", "20", *(("--threads", threads) if threads else ()))
+    process = _eval(policy_path, *options, limit_bytes=limit_mib << 20)
+    status, stderr = _finish(process)
+    if status != 0:
+        assert status == 2, stderr[-3000:]
+        assert "memory" in _one_error_line(stderr)
