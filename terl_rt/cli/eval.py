@@ -26,6 +26,7 @@ from terl_rt.cli.options import (
     scenario_file_option,
     scenarios_option,
     seed_option,
+    stdout_kept_for_json,
     suite_option,
     threads_option,
     workers_option,
@@ -148,7 +149,7 @@ def eval_command(
         if path is not None:  # the default policy too
             check_output(path, option, [("--policy", policy.path)], force)
     info = policy_info(policy)
-    with run_backend(backend, workers, address, threads) as runner:
+    with stdout_kept_for_json(as_json), run_backend(backend, workers, address, threads) as runner:
         log = EpisodeLogWriter(Path(log_path), info, staged=True, replace=force) if log_path else None
         try:
             results = evaluate_with_progress(

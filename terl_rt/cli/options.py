@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.resources
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -213,6 +214,18 @@ seed_option = click.option(
 json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object instead of a table."
 )
+
+
+@contextlib.contextmanager
+def stdout_kept_for_json(as_json: bool) -> Iterator[None]:
+    """With --json (`as_json`), what is printed to stdout inside the block goes to stderr,
+    so that stdout holds the JSON alone: Ray prints its workers' lines and a dying worker's
+    `(raylet)` report to the driver's stdout, until it shuts down."""
+    if not as_json:
+        yield
+        return
+    with contextlib.redirect_stdout(sys.stderr):
+        yield
 policy_option = click.option(
     "--policy", "policy_path", type=str, default=None, metavar="PATH",
     help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",
