@@ -1,5 +1,5 @@
 """`python -m terl_rt ...`: the `terl-rt` command, for environments whose scripts folder is not on PATH."""
 
-from terl_rt.cli.main import cli
+from terl_rt.cli import main
 
-cli(prog_name="terl-rt")
+main()

@@ -4,6 +4,8 @@ into one `Error:` line, and the options both take."""
 
 from __future__ import annotations
 
+import signal
+
 import click
 
 from terl_rt.evaluation.runs import BackendError, Stopped
@@ -36,13 +38,13 @@ class TerlGroup(click.Group):
             where = f" (see {err.ctx.command_path} -h)" if err.ctx is not None else ""
             click.echo(f"Error: {one_line(click.ClickException(err.format_message()))}{where}", err=True)
             ctx.exit(2)
-        except Stopped as err:
-            # SIGTERM or SIGHUP during a run: what was run is written; the status a process
-            # ended by that signal would have.
+        except KeyboardInterrupt as err:
+            # Ctrl-C, or SIGTERM or SIGHUP during a run with workers (Stopped): what was run
+            # is written; the status a process ended by that signal would have.
             if ctx.obj and ctx.obj.get("debug"):
                 raise
-            click.echo(f"Error: {one_line(err)}", err=True)
-            ctx.exit(128 + err.signum)
+            click.echo(f"Error: {one_line(err) if isinstance(err, Stopped) else 'stopped by SIGINT'}", err=True)
+            ctx.exit(128 + getattr(err, "signum", signal.SIGINT))
         except self.user_errors as err:
             if ctx.obj and ctx.obj.get("debug"):
                 raise

@@ -37,7 +37,7 @@ and actions give the same episode as `Simulator(scenario, seed)`.
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Mapping
 from types import SimpleNamespace
 from typing import Any
 
@@ -170,9 +170,11 @@ class TerlParallelEnv(ParallelEnv):
         infos = {agent: {"pursuer_index": i} for agent, i in self._index.items()}
         return observations, infos
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+    def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         """One decision step (0.5 s) for the live agents; returns observations, rewards,
         terminations, truncations and infos of the agents that were live before it."""
+        if not isinstance(actions, Mapping):
+            raise TypeError(f"step: actions must be a dict of agent name -> action index, got {_shown(actions)}")
         if not self.agents:
             raise RuntimeError("step: the episode ended (no live agents); call reset()")
         live = list(self.agents)

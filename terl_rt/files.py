@@ -5,7 +5,8 @@ written under a hidden temporary name beside its target and then published: with
 `replace`, renamed over the target; without, linked to the target's name, which fails
 when a file of that name exists, so two runs writing one path cannot replace each other
 unseen (the check and the publication are one step). Errors name the target, never the
-temporary file.
+temporary file. A run that writes a file for a long time (an episode log) holds its path
+(`OutputHold`): a second run asking for it meanwhile is refused, --force or not.
 """
 
 from __future__ import annotations
@@ -19,11 +20,75 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
 
-__all__ = ["NamingFile", "OutputExists", "atomic_output", "atomic_outputs", "publish", "temporary_beside"]
+__all__ = [
+    "NamingFile", "OutputBusy", "OutputExists", "OutputHold", "atomic_output", "atomic_outputs", "publish",
+    "temporary_beside",
+]
+
+try:
+    import fcntl
+except ImportError:  # Windows: outputs are not held
+    fcntl = None  # type: ignore[assignment]
 
 
 class OutputExists(FileExistsError):
     """The target of an output appeared while it was written (another run wrote it)."""
+
+
+class OutputBusy(OSError):
+    """Another run holds the output at this path (`OutputHold`)."""
+
+
+class OutputHold:
+    """Holds `path` for this run until `release`: an `OutputHold` of the same path taken
+    meanwhile, in any process, raises OutputBusy naming the holder's pid.
+
+    The hold is an advisory lock (flock) on a hidden file beside `path`, `.NAME.lock`,
+    which holds the pid and is removed on release; the system drops the lock of a run
+    that dies, and the next hold takes the file over. Not on Windows (no flock): there
+    every hold is granted.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._lock = self.path.with_name(f".{self.path.name}.lock")
+        self._fd: int | None = None
+        if fcntl is not None:
+            self._fd = self._take()
+
+    def _take(self) -> int:
+        """The descriptor of the lock file, locked; OutputBusy when another run holds it."""
+        while True:
+            fd = os.open(self._lock, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+                os.close(fd)
+                raise OutputBusy(
+                    errno.EBUSY, f"another run (pid {holder}) is writing it; wait for it to end or choose another path",
+                    str(self.path),
+                ) from None
+            if self._still_named(fd):
+                os.ftruncate(fd, 0)
+                os.write(fd, str(os.getpid()).encode())
+                return fd
+            os.close(fd)  # its holder released and removed it meanwhile: take the new one
+
+    def _still_named(self, fd: int) -> bool:
+        """True when the lock file's name still leads to the file `fd` locked."""
+        try:
+            return os.path.samestat(os.stat(self._lock), os.fstat(fd))
+        except FileNotFoundError:
+            return False
+
+    def release(self) -> None:
+        """Give the path back (the lock file is removed before it is unlocked)."""
+        if self._fd is None:
+            return
+        self._lock.unlink(missing_ok=True)
+        os.close(self._fd)
+        self._fd = None
 
 
 def temporary_beside(path: str | os.PathLike) -> Path:

@@ -125,6 +125,12 @@ def test_teammates_beyond_perception_are_not_seen():
     assert near.mask[0, 1] and not far.mask[0, 1]
 
 
+@pytest.mark.parametrize("given", [None, "exported/terl.onnx"], ids=["none", "path"])
+def test_a_policy_that_is_not_an_opened_policy_is_a_type_error_naming_it(given):
+    with pytest.raises(TypeError, match=r"policy must be an opened policy such as OnnxPolicy\(path\)"):
+        decide(given, (1.0, 2.0), 0.5, (0.5, 0.0))
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"ego_xy": (1.0, float("nan"))}, "ego_xy"),
     ({"ego_xy": (1.0, 2.0, 3.0)}, "ego_xy"),

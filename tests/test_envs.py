@@ -78,6 +78,14 @@ def test_a_seed_that_is_not_an_int_or_a_generator_is_refused_by_name(seed):
         parallel_env(SHORT).reset(seed=seed)
 
 
+@pytest.mark.parametrize("actions", [None, [0, 1], 4], ids=["none", "list", "int"])
+def test_step_without_a_dict_of_actions_is_a_type_error_naming_it(actions):
+    env = parallel_env(SHORT)
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match=r"step: actions must be a dict of agent name -> action index, got"):
+        env.step(actions)
+
+
 def test_agents_and_spaces_follow_the_contract():
     env = parallel_env("small-15", seed=3)
     assert env.possible_agents == [f"pursuer_{i}" for i in range(15)]

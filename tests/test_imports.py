@@ -30,3 +30,18 @@ def test_the_package_and_the_policy_contract_import_without_them():
 
 def test_logs_and_policies_load_what_they_need():
     assert heavy_modules_after("import terl_rt.logs.reader, terl_rt.policy.onnx_policy") == ["mcap", "onnxruntime"]
+
+
+def test_an_evaluation_on_the_command_line_loads_no_scipy():
+    """scipy brings a second OpenBLAS, which aborts or never returns under a memory limit
+    (issue 55); the success rate's exact interval needs none of it."""
+    evaluation = (
+        "from click.testing import CliRunner\n"
+        "from terl_rt.cli.main import cli\n"
+        "result = CliRunner().invoke(cli, ['eval', '--episodes', '2', '--max-steps', '5'])\n"
+        "assert result.exit_code == 0, result.output\n"
+        "import sys\n"
+        "print('scipy' in sys.modules)"
+    )
+    loaded = subprocess.run([sys.executable, "-c", evaluation], capture_output=True, text=True, check=True).stdout
+    assert loaded.split()[-1] == "False"

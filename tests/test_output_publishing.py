@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 from one_line import assert_one_error, invoke
 from onnx_models import write_test_policy
+from processes import start_eval, wait_for_log
 from tiny_worlds import capture_scenario
 
-from terl_rt.files import OutputExists, atomic_output, atomic_outputs, publish, temporary_beside
+from terl_rt.files import OutputBusy, OutputExists, OutputHold, atomic_output, atomic_outputs, publish, temporary_beside
 from terl_rt.logs.reader import EpisodeLogReader
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,6 +77,16 @@ def test_of_two_threads_publishing_one_path_exactly_one_wins(tmp_path):
     winners = [outcome for outcome in outcomes if outcome.startswith("won")]
     assert len(winners) == 1 and outcomes.count("refused") == 7
     assert target.read_text() == winners[0].split()[1] + "\n" and leftovers(tmp_path) == []
+
+
+def test_a_held_path_is_refused_to_a_second_hold_until_released_and_leaves_no_file(tmp_path):
+    target = tmp_path / "run.mcap"
+    first = OutputHold(target)
+    with pytest.raises(OutputBusy, match=rf"another run \(pid {os.getpid()}\) is writing it"):
+        OutputHold(target)
+    first.release()
+    OutputHold(target).release()
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_failed_write_leaves_the_earlier_file_and_no_temporary_file(tmp_path):
@@ -190,4 +201,22 @@ def test_two_runs_started_together_on_one_log_never_replace_each_other(files, tm
     assert str(log) in loser and ("exists" in loser or "another run" in loser) and "Traceback" not in loser
     winner_seed = 0 if outcomes[0][0] == 0 else 100
     assert [episode.seed for episode in EpisodeLogReader(log).episodes] == [winner_seed, winner_seed + 1]
+    assert leftovers(tmp_path) == []
+
+
+def test_a_forced_run_is_refused_while_another_run_writes_its_log(files, tmp_path):
+    """--force replaces what was there before; it never races a run that is still writing."""
+    log = tmp_path / "shared.mcap"
+    first = start_eval(files["policy"], log, "--episodes", "2", "--workers", "1")
+    try:
+        wait_for_log(first, log)
+        second = invoke(*eval_args(files, "--log", log, "--force"))
+        assert_one_error(second, str(log), f"another run (pid {first.pid}) is writing it")
+        assert first.wait(timeout=300) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    reader = EpisodeLogReader(log)
+    assert [(e.seed, e.complete) for e in reader.episodes] == [(0, True), (1, True)] and not reader.truncated
     assert leftovers(tmp_path) == []

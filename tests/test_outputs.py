@@ -108,6 +108,21 @@ def test_render_refuses_an_existing_image_and_its_own_log(files, tmp_path):
     assert files["log"].read_bytes() == before
 
 
+@pytest.mark.parametrize("looped", ["log", "image", "image folder"])
+def test_a_symlink_loop_among_renders_paths_is_one_line(files, tmp_path, looped):
+    loop = tmp_path / "loop"
+    loop.symlink_to(tmp_path / "back")
+    (tmp_path / "back").symlink_to(loop)
+    log, image = {
+        "log": (loop, tmp_path / "ep.png"),
+        "image": (files["log"], loop.with_suffix(".png")),
+        "image folder": (files["log"], loop / "ep.png"),
+    }[looped]
+    if looped == "image":
+        image.symlink_to(loop)
+    assert_one_error(invoke("render", log, "-o", image, "--force"), str(loop.name))
+
+
 def test_render_with_force_replaces_an_image_and_makes_folders(files, tmp_path):
     image = tmp_path / "old.png"
     image.write_bytes(b"replace me")

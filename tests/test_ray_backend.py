@@ -7,6 +7,7 @@ marked `ray`: `python -m pytest -m ray` runs them alone. Without Ray they are sk
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -116,6 +117,28 @@ def test_a_worker_killed_mid_batch_is_run_again_and_counted_once(policy, backend
     local = evaluate_policy(policy, scenario, 4, 0, max_steps=150, log_path=tmp_path / "local.mcap")
     assert on_ray.per_episode == local.per_episode
     assert log.read_bytes() == (tmp_path / "local.mcap").read_bytes()  # no step twice, none lost
+
+
+def test_with_json_stdout_holds_the_json_alone_when_a_ray_worker_dies(policy_path, tmp_path):
+    """Ray prints the dying worker's `(raylet)` lines to the driver's stdout: they go to stderr."""
+    log = tmp_path / "json.mcap"
+    command = [sys.executable, "-m", "terl_rt", "eval", "--policy", str(policy_path), "--scenario", "small-11",
+               "--episodes", "4", "--max-steps", "200", "--backend", "ray", "--workers", "2", "--log", str(log), "--json"]
+    process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        wait_for_log(process, log, size=50_000)
+        batches = [pid for pid in descendants(process.pid) if cmdline(pid).startswith("ray::batch_task")]
+        assert batches, "no batch was running when the log had grown"
+        os.kill(batches[0], signal.SIGKILL)
+        stdout, stderr = process.communicate(timeout=300)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert process.returncode == 0, stderr[-3000:]
+    assert "(raylet)" in stderr  # what the killed worker made Ray print
+    assert [scenario["episodes"] for scenario in json.loads(stdout)["scenarios"]] == [4]
 
 
 def test_a_policy_with_nan_outputs_on_ray_is_one_error_line(tmp_path, backend):

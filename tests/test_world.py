@@ -293,6 +293,12 @@ def test_evader_policy_of_wrong_shape_raises():
         world.step(np.full((1, 3), PURSUER_IDLE))
 
 
+@pytest.mark.parametrize("evader_policy", [object(), "apf"], ids=["object", "name"])
+def test_an_evader_policy_without_act_is_a_type_error_naming_it(evader_policy):
+    with pytest.raises(TypeError, match=r"evader_policy must have an act\(state, geometry, params, arena\) method"):
+        World(quiet_scenario(), evader_policy=evader_policy)
+
+
 # ---------------------------------------------------------------- results, state and metrics
 def test_step_result_shapes_and_dtypes():
     world = World(Scenario.preset("small-11"), num_envs=2, seed=0)

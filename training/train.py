@@ -8,6 +8,11 @@ pursuer's transition goes into one replay buffer. With `ScheduleConfig.mixed_sce
 group of B worlds per scenario (`WorldGroup`) and the batch steps go to the groups in turn,
 all into the one buffer (rows padded to the most evader slots).
 
+Seeds trained together (`train_seeds`): S seeds share the loop and its schedule and one
+`Learner` (training/learner.py: one batched update for all, each seed exactly itself); each
+seed keeps its own worlds, replay buffer, generator, snapshots, checkpoints and metrics in its
+own folder (`SeedState`), as a one-seed run (`train`, S = 1) keeps them.
+
 Counting: an environment step is one step of one world, so a batch step is B
 environment steps; `total_steps`, `learning_starts`, `train_frequency`,
 `target_network_frequency` and the logging, snapshot and checkpoint intervals
@@ -37,7 +42,7 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
   score and whether it became the best (kept in best/; with `RunConfig.keep_snapshots` every
   snapshot's network is kept in snapshots/<env_step>/).
 
-`train` is the loop, read top to bottom; the helpers before it do one thing each.
+`train_seeds` is the loop, read top to bottom; the helpers before it do one thing each.
 training/throughput.py times the loop's two halves (rollout, update) apart.
 """
 

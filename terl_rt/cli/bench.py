@@ -20,6 +20,7 @@ from terl_rt.cli.options import (
     scenario_option,
     scenarios_option,
     seed_option,
+    stdout_kept_for_json,
     threads_option,
 )
 from terl_rt.evaluation.backends import RayMissing
@@ -262,7 +263,7 @@ def backends_command(policy_path, scenario_names, suite, episodes, seed, max_ste
     policy = open_policy(policy_path, threads=1)
     scenarios = resolve_scenarios(scenario_names, None, suite)
     rows = []
-    with progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
+    with stdout_kept_for_json(as_json), progressbar(worker_counts, label="backends", file=sys.stderr) as counts:
         for workers in counts:
             try:
                 rows += backend_speeds(policy, scenarios, episodes, seed, workers, repeat=repeat, max_steps=max_steps)

@@ -25,6 +25,7 @@ from terl_rt.cli.options import (
     scenario_file_option,
     scenarios_option,
     seed_option,
+    stdout_kept_for_json,
     suite_option,
     threads_option,
     workers_option,
@@ -148,10 +149,11 @@ def eval_command(
     for option, path in (("--log", log_path), ("--csv", csv_path)):
         if path is not None:  # the default policy too
             check_output(path, option, [("--policy", policy.path)], force)
-    evaluation = evaluate_with_progress(
-        policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
-        backend=backend, address=address, threads=threads,
-    )
+    with stdout_kept_for_json(as_json):  # until the backend (Ray) has shut down
+        evaluation = evaluate_with_progress(
+            policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
+            backend=backend, address=address, threads=threads,
+        )
     results, info = list(evaluation.results), evaluation.policy
 
     # The results reach the terminal before any file is written: a full disk cannot lose them.

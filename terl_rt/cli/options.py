@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stdout
 from pathlib import Path
 from typing import Any
 
@@ -198,6 +198,18 @@ seed_option = click.option(
 json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print one JSON object instead of a table."
 )
+
+
+@contextmanager
+def stdout_kept_for_json(as_json: bool) -> Iterator[None]:
+    """With --json (`as_json`), what is printed to stdout inside the block goes to stderr,
+    so that stdout holds the JSON alone: Ray prints its workers' lines and a dying worker's
+    `(raylet)` report to the driver's stdout, until it shuts down."""
+    if not as_json:
+        yield
+        return
+    with redirect_stdout(sys.stderr):
+        yield
 policy_option = click.option(
     "--policy", "policy_path", type=str, default=None, metavar="PATH",
     help=f"ONNX policy file [default: {DEFAULT_POLICY} of the checkout, else the copy installed with terl-rt].",

@@ -27,11 +27,12 @@ force_option = click.option(
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    """True when `a` and `b` name the same file (the same inode, or the same resolved path)."""
+    """True when `a` and `b` name the same file (the same inode, or the same resolved path;
+    os.path.realpath, unlike Path.resolve, gives a path for a symlink loop too)."""
     try:
         return os.path.samefile(a, b)
     except OSError:
-        return Path(a).resolve() == Path(b).resolve()
+        return os.path.realpath(a) == os.path.realpath(b)
 
 
 def check_output(

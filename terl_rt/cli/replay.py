@@ -15,7 +15,7 @@ from terl_rt.logs.resimulate import verify
 def _episode_dict(entry: LoggedEpisode) -> dict:
     return {
         "episode": entry.number, "index": entry.index, "scenario": entry.scenario.name, "seed": entry.seed,
-        "steps": entry.steps, "complete": entry.complete,
+        "steps": entry.steps, "complete": entry.complete, "damaged_chunks": list(entry.damaged),
         "metrics": None if entry.metrics is None else entry.metrics.to_dict(),
     }
 
@@ -37,7 +37,8 @@ def _episode_line(entry: LoggedEpisode) -> str:
             f"{'success' if m.success else 'failure':<8}{m.travel_time_s:>11.1f}{m.evaders_encircled:>10}"
             f"{m.collision_ratio:>16.3f}{team_return:>10}"
         )
-    return f"{entry.number:>4}  {entry.scenario.name:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}"
+    damage = f"  DAMAGED: reads up to the chunk at byte {entry.damaged[0]}" if entry.damaged else ""
+    return f"{entry.number:>4}  {entry.scenario.name:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}{damage}"
 
 
 def _held_note(log: str) -> str | None:

@@ -4,8 +4,13 @@ A complete file (one with its summary and footer) is read through the MCAP libra
 reader (`mcap.reader.make_reader`): its summary's chunk and metadata indexes, so any
 chunking and compression another tool rewrote the log with reads the same. A file cut
 off before its summary is scanned record by record by hand: it reads back up to the last
-complete step and says so (`EpisodeLogReader.problem`). Anything else that does not parse
-is an `EpisodeLogError` naming the byte offset and, where known, the episode and step.
+complete step and says so (`EpisodeLogReader.problem`). Either way every chunk is read and
+its CRC checked when the file is opened, and the steps are found in the chunks themselves
+(never in the message indexes beside them, which a damaged byte can move to another
+episode): an episode with a chunk that fails is listed as damaged (`LoggedEpisode.damaged`)
+and reads up to that chunk, the problem says so, and the other episodes read as they are.
+Anything else that does not parse is an `EpisodeLogError` naming the byte offset and,
+where known, the episode and step.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Message, MessageIndex, Metadata, Schema
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
 from terl_rt.logs.format import (
@@ -71,6 +76,9 @@ class LoggedEpisode:
     chunks: tuple[tuple[int, int], ...] = field(repr=False, default=())
     """(byte offset, record length) of the chunks that hold its steps, in file order (in a
     log as terl-rt writes it: one chunk per step, step 0 first)."""
+    damaged: tuple[int, ...] = ()
+    """byte offsets of its chunks that fail their CRC check or do not parse: `steps` counts
+    the steps before the first, where `EpisodeLogReader.steps` stops with an EpisodeLogError."""
 
     @property
     def complete(self) -> bool:
@@ -164,7 +172,7 @@ class EpisodeLogReader:
         self.truncated = False
         """True when the file stops before its footer (cut off, or its writer never closed)."""
         self.problem: str | None = None
-        """What is wrong with a truncated file, in one sentence; None for a whole file."""
+        """What is wrong with the file (cut off, damaged chunks), in one sentence; None for a sound one."""
         self.channels: dict[int, Channel] = {}
         self.schemas: dict[int, Schema] = {}
         self._scanned: list[dict] = []
@@ -176,11 +184,12 @@ class EpisodeLogReader:
         self._episodes = tuple(
             LoggedEpisode(
                 number=raw["number"], index=raw["index"], seed=raw["seed"], scenario=raw["scenario"],
-                steps=max((len(raw["times"]) if self.indexed else len(raw["chunks"])) - 1, 0),
-                metrics=raw["metrics"], chunks=tuple(raw["chunks"]),
+                steps=max(self._readable_steps(raw) - 1, 0), metrics=raw["metrics"], chunks=tuple(raw["chunks"]),
+                damaged=tuple(raw["damaged"]),
             )
             for raw in self._scanned
         )
+        self._note_damage()
 
     # --- listing
     @property
@@ -236,6 +245,28 @@ class EpisodeLogReader:
 
     def _fail(self, message: str) -> EpisodeLogError:
         return EpisodeLogError(f"{self.path}: {message}")
+
+    def _readable_steps(self, raw: dict) -> int:
+        """Steps of an episode that read back, the reset frame included: those before its
+        first damaged chunk."""
+        if self.indexed:
+            return len(raw["times"])  # cut at the first damaged chunk already
+        offsets = [offset for offset, _ in raw["chunks"]]
+        return offsets.index(raw["damaged"][0]) if raw["damaged"] else len(offsets)
+
+    def _note_damage(self) -> None:
+        """Add the damaged chunks, if any, to `problem`."""
+        damaged = [raw["number"] for raw in self._scanned if raw["damaged"]]
+        if not damaged:
+            return
+        first = min(offset for raw in self._scanned for offset in raw["damaged"])
+        count = len({offset for raw in self._scanned for offset in raw["damaged"]})
+        note = (
+            f"{count} chunk(s) fail their CRC check or do not parse, the first at byte {first}: "
+            f"episode(s) {', '.join(map(str, damaged))} read only up to their first damaged chunk; "
+            f"the other episodes are intact"
+        )
+        self.problem = note if self.problem is None else f"{self.problem}; {note}"
 
     def _cut(self, what: str) -> None:
         self.truncated = True
@@ -354,7 +385,7 @@ class EpisodeLogReader:
                 self._scanned.append({
                     "number": number, "index": int(data["index"]), "seed": int(data["seed"]),
                     "scenario": Scenario.from_dict(decode(data["scenario"])),
-                    "metrics": None, "chunks": [], "times": [],
+                    "metrics": None, "chunks": [], "times": [], "damaged": [], "damaged_from_ns": None,
                     "start_ns": int(data["start_time_ns"]) if "start_time_ns" in data else None,
                 })
             elif record.name == META_EPISODE_END:
@@ -372,20 +403,33 @@ class EpisodeLogReader:
             raise self._fail(f"a chunk at byte {offset} precedes the 'terl.log' metadata; not an episode log")
         if not self._scanned:
             raise self._fail(f"a chunk at byte {offset} precedes the first episode record")
+        raw = self._scanned[-1]
+        try:
+            records = self._chunk_records(handle, offset, length, f"episode {raw['number']}, step {len(raw['chunks'])}")
+        except EpisodeLogError:
+            if not self.channels:
+                raise  # the first chunk holds the channels: without them no step reads
+            raw["damaged"].append(offset)
+            records = []
         if not self.channels:
             # The writer registers every schema and channel before the first step: they
             # ride in the first chunk of the file.
-            for record in self._chunk_records(handle, offset, length, "step 0 of episode 0"):
+            for record in records:
                 if isinstance(record, Schema):
                     self.schemas[record.id] = record
                 elif isinstance(record, Channel):
                     self.channels[record.id] = record
-        self._scanned[-1]["chunks"].append((offset, length))
+        raw["chunks"].append((offset, length))
 
     def _chunk_records(self, handle, offset: int, length: int, what: str) -> list:
-        handle.seek(offset + _RECORD_HEAD.size)
+        """The records of the chunk record at `offset` whose body is `length` bytes, its CRC
+        checked; EpisodeLogError naming `what` when it is damaged."""
+        handle.seek(offset)
+        head = handle.read(_RECORD_HEAD.size)
         body = handle.read(length)
         try:
+            if len(head) < _RECORD_HEAD.size or _RECORD_HEAD.unpack(head) != (Opcode.CHUNK, length):
+                raise ValueError(f"no chunk record of {length} bytes there")
             chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
             return breakup_chunk(chunk, validate_crc=True)
         except Exception as error:  # zstd, CRC and struct errors all mean a damaged chunk
@@ -460,8 +504,13 @@ class EpisodeLogReader:
         state_channels = {cid for cid, channel in self.channels.items() if channel.topic == TOPIC_STATE}
         starts = [raw["start_ns"] for raw in self._scanned]
         for chunk in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-            times = self._state_times(handle, chunk, state_channels)
             where = (chunk.chunk_start_offset, chunk.chunk_length - _RECORD_HEAD.size)
+            try:
+                records = self._chunk_records(handle, *where, "while listing the steps")
+            except EpisodeLogError:
+                self._on_damaged_chunk(where, chunk.message_start_time, chunk.message_end_time, starts)
+                continue
+            times = [r.log_time for r in records if isinstance(r, Message) and r.channel_id in state_channels]
             for time_ns in times:
                 number = bisect.bisect_right(starts, time_ns) - 1
                 if number < 0:
@@ -473,30 +522,20 @@ class EpisodeLogReader:
                 if not raw["chunks"] or raw["chunks"][-1] != where:
                     raw["chunks"].append(where)
         for raw in self._scanned:
-            raw["times"] = sorted(set(raw["times"]))
+            cut = raw["damaged_from_ns"]
+            raw["times"] = sorted(t for t in set(raw["times"]) if cut is None or t < cut)
         return True
 
-    def _state_times(self, handle, chunk, state_channels: set[int]) -> list[int]:
-        """Log times of the /state messages in a chunk: from its message index where the
-        file has one, else from the chunk itself."""
-        offsets = [chunk.message_index_offsets[c] for c in state_channels if c in chunk.message_index_offsets]
-        if offsets or (chunk.message_index_offsets and not state_channels & set(chunk.message_index_offsets)):
-            times = []
-            for offset in offsets:
-                handle.seek(offset)
-                opcode, length = _RECORD_HEAD.unpack(handle.read(_RECORD_HEAD.size))
-                try:
-                    if opcode != Opcode.MESSAGE_INDEX:
-                        raise ValueError(f"record type 0x{opcode:02x}")
-                    index = MessageIndex.read(ReadDataStream(io.BytesIO(handle.read(length))))
-                except Exception as error:
-                    raise self._fail(f"corrupt message index at byte {offset}: {error}") from None
-                times += [time_ns for time_ns, _ in index.records]
-            return times
-        records = self._chunk_records(
-            handle, chunk.chunk_start_offset, chunk.chunk_length - _RECORD_HEAD.size, "while listing the steps"
-        )
-        return [r.log_time for r in records if isinstance(r, Message) and r.channel_id in state_channels]
+    def _on_damaged_chunk(self, where: tuple[int, int], start_ns: int, end_ns: int, starts: list[int]) -> None:
+        """Mark the chunk at `where` (offset, length) damaged in every episode its log times
+        [start_ns, end_ns] (from the summary's chunk index) reach; `starts`: the episodes'
+        start times (ns)."""
+        first = max(bisect.bisect_right(starts, start_ns) - 1, 0)
+        for raw in self._scanned[first: max(bisect.bisect_right(starts, end_ns), first + 1)]:
+            raw["damaged"].append(where[0])
+            raw["chunks"].append(where)
+            known = raw["damaged_from_ns"]
+            raw["damaged_from_ns"] = start_ns if known is None else min(known, start_ns)
 
     def _indexed_steps(self, number: int) -> Iterator[LoggedStep]:
         raw = self._scanned[number]
@@ -504,10 +543,16 @@ class EpisodeLogReader:
         high = self._scanned[number + 1]["start_ns"] if number + 1 < len(self._scanned) else None
         wanted = set(raw["times"])
         gathered: dict[int, dict[str, bytes]] = {}
+        damage: EpisodeLogError | None = None
         with open(self.path, "rb") as handle:
             for offset, length in raw["chunks"]:
                 what = f"episode {number}, step {len(gathered)}"
-                for record in self._chunk_records(handle, offset, length, what):
+                try:
+                    records = self._chunk_records(handle, offset, length, what)
+                except EpisodeLogError as error:
+                    damage = error  # the steps before it are served, then the error
+                    break
+                for record in records:
                     if not isinstance(record, Message) or record.log_time < low:
                         continue
                     if (high is not None and record.log_time >= high) or record.log_time not in wanted:
@@ -529,3 +574,5 @@ class EpisodeLogReader:
                     f"expected episode {number} step {expected}; the file is corrupt"
                 )
             yield step
+        if damage is not None:
+            raise damage

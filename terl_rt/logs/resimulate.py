@@ -30,7 +30,8 @@ class Mismatch:
 
     step: int
     field: str
-    """a /state field, "evader_actions", "done" or "metrics"."""
+    """a /state field, "evader_actions", "done", "metrics", or "log" (the step does not
+    read back: a damaged chunk)."""
     detail: str
 
 
@@ -105,7 +106,8 @@ def _comparable(simulated: EpisodeMetrics, recorded: EpisodeMetrics) -> EpisodeM
 
 def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
     """Re-simulate episode `episode` (file order) of the log at `path` and compare every
-    recorded state with the simulator's, bit for bit; the report names the first mismatch."""
+    recorded state with the simulator's, bit for bit; the report names the first mismatch
+    (a step that does not read back is one)."""
     reader = EpisodeLogReader(path)
     if reader.world_version != WORLD_VERSION:
         raise EpisodeLogError(
@@ -119,21 +121,24 @@ def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
     mismatch: Mismatch | None = None
     checked = 0
     last_step = -1
-    for step in reader.steps(episode):
-        last_step = step.step
-        if step.step > 0:
-            if simulator.done:
-                mismatch = Mismatch(step.step, "done", "the log goes on after the simulated episode ended")
+    try:
+        for step in reader.steps(episode):
+            last_step = step.step
+            if step.step > 0:
+                if simulator.done:
+                    mismatch = Mismatch(step.step, "done", "the log goes on after the simulated episode ended")
+                    break
+                _, info = simulator.step(step.pursuer_actions)
+                problem = _first_difference(step.evader_actions, info.evader_actions)
+                if problem is not None:
+                    mismatch = Mismatch(step.step, "evader_actions", problem)
+                    break
+                checked += 1
+            mismatch = _compare_state(step, simulator.state())
+            if mismatch is not None:
                 break
-            _, info = simulator.step(step.pursuer_actions)
-            problem = _first_difference(step.evader_actions, info.evader_actions)
-            if problem is not None:
-                mismatch = Mismatch(step.step, "evader_actions", problem)
-                break
-            checked += 1
-        mismatch = _compare_state(step, simulator.state())
-        if mismatch is not None:
-            break
+    except EpisodeLogError as error:  # a damaged chunk: the steps before it were compared
+        mismatch = Mismatch(last_step + 1, "log", str(error))
     if mismatch is None and entry.complete:
         if not simulator.done:
             mismatch = Mismatch(last_step, "done", "the log ends here but the simulated episode goes on")

@@ -20,7 +20,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from terl_rt import __version__
-from terl_rt.files import NamingFile, publish, temporary_beside
+from terl_rt.files import NamingFile, OutputHold, publish, temporary_beside
 from terl_rt.logs.format import (
     LOG_FORMAT,
     LOG_VERSION,
@@ -115,7 +115,9 @@ class EpisodeLogWriter:
     first step leaves an earlier file at `path` untouched (closed without a step, the
     temporary file is removed).
     replace: replace a file at `path`; without, a file there (even one another run
-    published meanwhile) raises FileExistsError naming `path`.
+    published meanwhile) raises FileExistsError naming `path`. Either way the writer holds
+    `path` until `close` (terl_rt.files.OutputHold): a writer of the same path opened
+    meanwhile, by any run, raises OutputBusy, and the first run's log stays whole.
     scenes: write /world, Foxglove's 3-D scene of each step (most of a step's writing
     time); without, the log holds every other topic and reads, replays and verifies alike.
     """
@@ -135,28 +137,33 @@ class EpisodeLogWriter:
         self._scenes = scenes
         self.steps_written = 0
         """steps written so far, all episodes."""
-        self._file = NamingFile(open(self.staging_path or self.path, "wb" if replace or staged else "xb"), self.path)
-        self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
-        self._mcap.start(profile="", library=f"terl-rt {__version__}")
-        self._channels: dict[str, int] = {}
-        self._sequence: dict[str, int] = {}
-        for topic, schema in SCHEMAS.items():
-            schema_id = self._mcap.register_schema(name=schema.name, encoding=schema.encoding, data=schema.data)
-            self._channels[topic] = self._mcap.register_channel(
-                topic=topic, message_encoding=schema.message_encoding, schema_id=schema_id,
-            )
-            self._sequence[topic] = 0
-        self._policy = {"policy": str(policy_info["name"]), "policy_sha256": str(policy_info["sha256"])}
-        self._mcap.add_metadata(META_LOG, {
-            "format": LOG_FORMAT,
-            "version": LOG_VERSION,
-            "world": WORLD_VERSION,
-            "terl_rt": __version__,
-            **self._policy,
-            "policy_path": str(policy_info.get("path", "")),
-            "policy_metadata": json.dumps(dict(policy_info.get("metadata", {}))),
-        })
-        self._mcap.flush()
+        self._hold = OutputHold(self.path)
+        try:
+            self._file = NamingFile(open(self.staging_path or self.path, "wb" if replace or staged else "xb"), self.path)
+            self._mcap = Writer(self._file, chunk_size=_NO_CHUNK_LIMIT, compression=CompressionType.ZSTD)
+            self._mcap.start(profile="", library=f"terl-rt {__version__}")
+            self._channels: dict[str, int] = {}
+            self._sequence: dict[str, int] = {}
+            for topic, schema in SCHEMAS.items():
+                schema_id = self._mcap.register_schema(name=schema.name, encoding=schema.encoding, data=schema.data)
+                self._channels[topic] = self._mcap.register_channel(
+                    topic=topic, message_encoding=schema.message_encoding, schema_id=schema_id,
+                )
+                self._sequence[topic] = 0
+            self._policy = {"policy": str(policy_info["name"]), "policy_sha256": str(policy_info["sha256"])}
+            self._mcap.add_metadata(META_LOG, {
+                "format": LOG_FORMAT,
+                "version": LOG_VERSION,
+                "world": WORLD_VERSION,
+                "terl_rt": __version__,
+                **self._policy,
+                "policy_path": str(policy_info.get("path", "")),
+                "policy_metadata": json.dumps(dict(policy_info.get("metadata", {}))),
+            })
+            self._mcap.flush()
+        except BaseException:
+            self._hold.release()
+            raise
         self._episode: _OpenEpisode | None = None
         self._episodes = 0
         self._next_offset_ns = 0
@@ -308,6 +315,7 @@ class EpisodeLogWriter:
             self._file.close()
             if self.staging_path is not None:  # no step was taken: leave `path` as it was
                 self.staging_path.unlink(missing_ok=True)
+            self._hold.release()
 
     def _check_open(self) -> None:
         if self._closed:

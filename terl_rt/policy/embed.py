@@ -235,9 +235,15 @@ def decide(
     """The policy's action for one pursuer; arguments as in `observe`.
 
     policy: an `OnnxPolicy` (anything with its `evaluate`). Open it once and reuse it.
-    Raises ContractError (a ValueError) when the policy outputs NaN or Inf, as
-    `terl-rt eval` does, or fails inside onnxruntime (`PolicyRunError`).
+    Raises TypeError for anything else as `policy` (a path among them), ContractError (a
+    ValueError) when the policy outputs NaN or Inf, as `terl-rt eval` does, or fails
+    inside onnxruntime (`PolicyRunError`).
     """
+    if not callable(getattr(policy, "evaluate", None)):
+        raise TypeError(
+            "policy must be an opened policy such as OnnxPolicy(path), opened once and reused, "
+            f"got {type(policy).__name__} {policy!r:.60}"
+        )
     observation = observe(
         ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params, encircled
     )

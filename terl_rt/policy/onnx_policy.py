@@ -98,8 +98,42 @@ def session_options(threads: int | None = None) -> ort.SessionOptions:
     return options
 
 
+THREAD_STACK_BYTES = 8 << 20
+"""A thread's stack where `ulimit -s` is unlimited (glibc's default otherwise follows it)."""
+SESSION_ROOM_BYTES = 48 << 20
+"""Address space a session takes beside its threads' stacks (the model, its arena), with
+room to spare: onnxruntime starts its threads while it allocates them."""
+
+
+def _check_room_for_threads(threads: int | None) -> None:
+    """MemoryError when the stacks of onnxruntime's intra-op threads (`threads`; None: one a
+    CPU, at most) and the session (SESSION_ROOM_BYTES) do not fit under the address-space
+    limit (`ulimit -v`): onnxruntime hangs when it cannot start a thread. Nothing to check
+    without a limit, or off Linux."""
+    try:
+        import resource
+
+        with open("/proc/self/statm") as handle:
+            used = int(handle.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (ImportError, OSError, ValueError):
+        return
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit == resource.RLIM_INFINITY:
+        return
+    stack = resource.getrlimit(resource.RLIMIT_STACK)[0]
+    stack = THREAD_STACK_BYTES if stack == resource.RLIM_INFINITY else stack
+    count = threads or os.cpu_count() or 1
+    needed = (count - 1) * stack + SESSION_ROOM_BYTES  # the calling thread is one of them
+    if used + needed > limit:
+        raise MemoryError(
+            f"a policy on {count} onnxruntime threads needs {needed >> 20} MiB of address space, "
+            f"and {max(limit - used, 0) >> 20} MiB are left under the limit (ulimit -v); ask for fewer threads"
+        )
+
+
 def _session_from_bytes(model: bytes, path: Path, threads: int | None) -> ort.InferenceSession:
     options = session_options(threads)
+    _check_room_for_threads(threads)
     try:
         return ort.InferenceSession(model, sess_options=options, providers=["CPUExecutionProvider"])
     except Exception as error:  # onnxruntime raises its own types for every kind of bad file

@@ -137,6 +137,11 @@ class World:
         self.scenario = scenario
         self.params = scenario.params
         self.num_envs = num_envs
+        if evader_policy is not None and not callable(getattr(evader_policy, "act", None)):
+            raise TypeError(
+                "evader_policy must have an act(state, geometry, params, arena) method (terl_rt.EvaderPolicy) "
+                f"or be None, got {type(evader_policy).__name__} {evader_policy!r:.60}"
+            )
         self.evader_policy = evader_policy if evader_policy is not None else PublishedAPFEvader()
         self._seed(seed)
         p, n, m = self.params, scenario.pursuers, scenario.evaders
