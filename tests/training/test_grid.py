@@ -351,6 +351,7 @@ def test_seeds_per_process_stacks_each_methods_unfinished_cells_in_seed_order(tm
     assert stack_cells(cells, 1) == cells
 
 
+@pytest.mark.slow  # the device command's test trains stacked seeds in CI; this adds shipping them
 def test_a_grid_of_stacked_seeds_lays_out_and_ships_every_seed_as_cells_alone_do(tmp_path):
     recipes = write_recipes(tmp_path / "recipes")[:1]
     arguments = ["grid", str(recipes[0]), "--seeds", "1,2", "--out", str(tmp_path / "runs"), "--seeds-per-process", "2",
