@@ -1,9 +1,10 @@
 """Shipping a grid (training.grid): every finished seed's policy and one card per method.
 
 Into a folder (exported/comparison): `<method>-seed-<S>.onnx`, the cell's shipped checkpoint
-(its recipe's: the run's best snapshot) with `terl.method` and `terl.seed` in its metadata;
-`<method>.md`, the method's card, every seed a row of its table, a seed that failed or has not
-finished included; `<method>-seeds.png`, every seed's curves in one figure.
+(its recipe's `ships_from`: the run's best snapshot, or its last checkpoint) with `terl.method`
+and `terl.seed` in its metadata; `<method>.md`, the method's card, every seed a row of its
+table, a seed that failed or has not finished included; `<method>-seeds.png`, every seed's
+curves in one figure.
 """
 
 from __future__ import annotations
@@ -91,9 +92,7 @@ def method_card(
         f"- {settings(config)}; on {machine}.",
         "- Segments: " + ", ".join(f"{s.name} to {s.config.schedule.total_steps:,} steps" for s in recipe.segments)
         + ".",
-        f"- Shipped: each seed's best snapshot (score: mean over its evaluations of success - collision ratio - "
-        f"time / limit; {config.run.snapshot_episodes} episodes of the current stage and of "
-        f"{config.run.snapshot_preset} from seed {config.run.eval_seed}, seeds no report uses).",
+        shipped_line(recipe),
         "",
         "## Seeds",
         "",
@@ -106,6 +105,19 @@ def method_card(
         "",
     ]
     return "\n".join(lines)
+
+
+def shipped_line(recipe: Recipe) -> str:
+    """The card's line on what each seed ships: its best snapshot by the snapshot score, or with
+    `ships_from = "last"` its last checkpoint, the snapshots then a learning curve only."""
+    config = recipe.segments[-1].config
+    evaluations = (f"{config.run.snapshot_episodes} episodes of the current stage and of {config.run.snapshot_preset} "
+                   f"from seed {config.run.eval_seed}, seeds no report uses")
+    if recipe.ships_from == "last":
+        return (f"- Shipped: each seed's last checkpoint ({config.schedule.total_steps:,} steps); its snapshots "
+                f"({evaluations}) choose nothing.")
+    return (f"- Shipped: each seed's best snapshot (score: mean over its evaluations of success - collision ratio - "
+            f"time / limit; {evaluations}).")
 
 
 def seed_row(cell: Cell, recipe: Recipe, is_shipped: bool, records: list[dict[str, Any]]) -> str:

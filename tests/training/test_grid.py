@@ -22,6 +22,7 @@ from training.__main__ import main
 from training.grid import LocalProcesses, plan_grid, run_grid
 from training.recipe import load_recipe, segment_folder
 from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
+from training.ship import shipped_line
 from terl_rt.policy.contract import META_METHOD, META_SEED
 
 BASE = """
@@ -156,6 +157,15 @@ def test_a_method_card_lists_every_seeds_weights_figures_and_curves(grid):
         assert f"\n| {seed} | 120 | " in card
     assert "![every seed's curves](tiny-dqn-seeds.png)" in card
     assert (root / "exported" / "tiny-dqn-seeds.png").stat().st_size > 0
+
+
+def test_a_card_says_whether_its_seeds_ship_the_best_snapshot_or_the_last_checkpoint(tmp_path):
+    (tmp_path / "best.toml").write_text(BASE)
+    (tmp_path / "last.toml").write_text('ships_from = "last"' + BASE)
+    assert shipped_line(load_recipe(tmp_path / "best.toml")).startswith("- Shipped: each seed's best snapshot (score: ")
+    assert shipped_line(load_recipe(tmp_path / "last.toml")) == (
+        "- Shipped: each seed's last checkpoint (120 steps); its snapshots (1 episodes of the current stage and of "
+        "small-11 from seed 20240, seeds no report uses) choose nothing.")
 
 
 def test_a_seed_that_did_not_finish_keeps_its_row_in_the_card(grid):
