@@ -12,11 +12,14 @@ from typing import Any
 class TrainingStopped(Exception):
     """Training stopped by SIGINT (Ctrl-C) or SIGTERM after writing a whole checkpoint."""
 
-    def __init__(self, signal_name: str, env_step: int, out_dir: Path) -> None:
-        super().__init__(
-            f"stopped by {signal_name} at environment step {env_step:,}: a whole checkpoint is in {out_dir} "
-            f"(`python -m training train --resume {out_dir}`, or the same `run` command, goes on from it)"
-        )
+    def __init__(self, signal_name: str, env_step: int, out_dirs: list[Path]) -> None:
+        if len(out_dirs) == 1:
+            where = (f"a whole checkpoint is in {out_dirs[0]} (`python -m training train --resume {out_dirs[0]}`, "
+                     "or the same `run` command, goes on from it)")
+        else:
+            where = (f"a whole checkpoint of each seed is in {', '.join(map(str, out_dirs))} (the same `run` "
+                     "command goes on from them)")
+        super().__init__(f"stopped by {signal_name} at environment step {env_step:,}: {where}")
         self.env_step = env_step
 
 

@@ -702,8 +702,7 @@ def train_seeds(
                     seed.checkpoint(learner, k)
             if stopping:
                 progress.close()
-                folders = seeds[0].out_dir if len(seeds) == 1 else seeds[0].out_dir.parent
-                raise TrainingStopped(stops.received, env_step, folders)
+                raise TrainingStopped(stops.received, env_step, [seed.out_dir for seed in seeds])
 
     progress.close()
     return {seed.seed: seed.counters for seed in seeds}
