@@ -177,8 +177,7 @@ class Learner:
 
     def _split(self, row: torch.Tensor) -> list[torch.Tensor]:
         """A seed's flat row [P] -> its parameters' tensors, in `parameters()` order."""
-        sizes = [value.numel() for value in self.template.parameters()]
-        return [part.view(value.shape) for part, value in zip(row.split(sizes), self.template.parameters())]
+        return [row[offset : offset + shape.numel()].view(shape) for offset, shape in parameter_slices(self.template).values()]
 
     def _join(self, parts: list[torch.Tensor]) -> torch.Tensor:
         """Inverse of `_split`: the parameters' tensors -> a flat row [P] on the device."""

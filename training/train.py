@@ -613,7 +613,7 @@ def train_seeds(
         raise ValueError(f"seeds trained together resume from one environment step; these are at {steps}")
     env_step = seeds[0].counters.env_step
     learner.refresh_actors()  # a resumed acting copy starts from the loaded weights
-    progress = Progress(show_progress, env_step)
+    progress.last_step, progress.last_time = env_step, time.perf_counter()  # the speed counts from here
     stage_name = stage_label(training_scenarios(schedule, data.reward, env_step))
     for seed in seeds:
         seed.enter_stage(training_scenarios(schedule, data.reward, env_step), announce=False)

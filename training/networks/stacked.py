@@ -141,7 +141,7 @@ def seed_network(template: QNetwork, flat: torch.Tensor, seed_index: int) -> QNe
     network = copy.deepcopy(template)
     for name, (offset, shape) in parameter_slices(template).items():
         owner, _, attribute = name.rpartition(".")
-        view = flat[seed_index, offset : offset + shape.numel()].view(shape)
+        view = flat_view(flat, offset, shape)[seed_index]
         setattr(network.get_submodule(owner), attribute, nn.Parameter(view, requires_grad=False))
     return network
 
