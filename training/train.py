@@ -373,7 +373,7 @@ def restore_buffer(
     it held (`Counters.replay_transitions`; its capacity for older checkpoints), and for at
     least `learning_starts` environment steps: updating on a buffer a tenth as full as before
     made the policy collapse within 20 k steps. The refill's environment steps do not count
-    toward the schedule (`train`).
+    toward the schedule (`Refill`).
     """
     learning_starts = config.data.learning_starts
     saved = resume / REPLAY_FILE
@@ -458,6 +458,9 @@ class SeedState:
         self.groups: list[WorldGroup] = []
         self.recent: deque = deque(maxlen=RECENT_EPISODES)
         self.losses: list[float] = []
+        """losses of the updates since the last "train" record."""
+        self.last_loss: float | None = None
+        """loss of its last update, for the status line (None before one)."""
 
     def restore(self, resume: Path, load_replay: bool) -> str:
         """Load or plan the refill of the resumed buffer (`restore_buffer`); a best that no longer
@@ -506,9 +509,10 @@ class SeedState:
             group.returns[env], group.terms[env], group.team[env] = 0.0, 0.0, 0.0
             self.counters.episodes += 1
 
-    def snapshot(self, model: QNetwork, learner: Learner, index: int, progress: Progress) -> None:
-        """Evaluate the online network, log it, keep it (RunConfig.keep_snapshots) and in best/ when it scores best."""
-        run, counters = self.config.run, self.counters
+    def snapshot(self, learner: Learner, index: int, progress: Progress) -> None:
+        """Evaluate its online network, log it, keep it (RunConfig.keep_snapshots) and in best/ when it scores best."""
+        run, counters, model = self.config.run, self.counters, learner.online[index]
+        progress.show(f"step {counters.env_step:,}: {self.label}snapshot evaluation ({run.snapshot_episodes} episodes a scenario)")
         record, better = take_snapshot(model, self.groups[0].scenario, run, counters.best_score)
         write_record(self.log_path, {**record, "env_step": counters.env_step})
         if run.keep_snapshots:
@@ -552,13 +556,13 @@ class SeedState:
 
 
 def progress_line(seeds: list[SeedState], env_step: int, total_steps: int, rate: float, epsilon: float,
-                  stage_name: str, last_losses: list[float | None]) -> str:
+                  stage_name: str) -> str:
     """The status line: steps, speed, and each seed's success over its recent episodes and last loss."""
     def success(seed: SeedState) -> str:
         value = recent_means(seed.recent)["success_rate"]
         return "-" if value is None else f"{value:.2f}"
 
-    losses = "/".join("-" if loss is None else f"{loss:.3g}" for loss in last_losses)
+    losses = "/".join("-" if seed.last_loss is None else f"{seed.last_loss:.3g}" for seed in seeds)
     seed_names = "" if len(seeds) == 1 else f"seeds {'/'.join(str(seed.seed) for seed in seeds)} | "
     return (
         f"step {env_step:,}/{total_steps:,} | {rate:,.0f} steps/s | {seed_names}"
@@ -566,6 +570,95 @@ def progress_line(seeds: list[SeedState], env_step: int, total_steps: int, rate:
         f"success {'/'.join(success(seed) for seed in seeds)} | loss {losses} | "
         f"eps {epsilon:.3f} | updates {seeds[0].counters.updates} | {stage_name}"
     )
+
+
+# ---------------------------------------------------------------- the loop's parts
+def resumed_step(seeds: list[SeedState]) -> int:
+    """The environment step the seeds start from: seeds trained together share one schedule, so
+    they resume from one step (ValueError otherwise)."""
+    steps = {seed.seed: seed.counters.env_step for seed in seeds}
+    if len(set(steps.values())) != 1:
+        raise ValueError(f"seeds trained together resume from one environment step; these are at {steps}")
+    return seeds[0].counters.env_step
+
+
+class Refill:
+    """A resume's refill of the seeds' replay buffers (`restore_buffer`), at the environment step
+    it stopped, as if it had never stopped: its steps do not count toward the schedule (stage,
+    epsilon, step size), and no update runs until it ends."""
+
+    def __init__(self, seeds: list[SeedState], num_envs: int, learning_starts: int) -> None:
+        self.active = any(seed.refill_to for seed in seeds)
+        self.num_envs = num_envs
+        self.learning_starts = learning_starts
+        self.steps = 0
+        """environment steps refilled so far."""
+
+    def advance(self, seeds: list[SeedState], env_step: int, progress: Progress) -> None:
+        """Count a batch step of the refill; it ends once every seed's buffer holds what it owes
+        (`SeedState.refill_to`, then cleared) and `learning_starts` steps have been refilled."""
+        self.steps += self.num_envs
+        if all(len(seed.buffer) >= seed.refill_to for seed in seeds) and self.steps >= self.learning_starts:
+            self.active = False
+            for seed in seeds:
+                seed.refill_to = 0
+            progress.note(f"environment step {env_step}: refilled in {self.steps:,} steps, updates resume")
+
+
+def update_seeds(
+    learner: Learner, seeds: list[SeedState], due: int, batch_size: int, env_step: int, progress: Progress
+) -> list[SeedState]:
+    """`due` gradient updates, each one `Learner.update` of every seed on a batch of its own
+    buffer; each seed keeps its losses. A seed whose loss turned non-finite stops (`stop_seeds`).
+    Returns the seeds that go on."""
+    losses = torch.stack([
+        learner.update([seed.buffer.sample(batch_size, seed.rng) for seed in seeds]) for _ in range(due)
+    ]).T.tolist()  # [S][due]: one read of the device a batch step
+    for seed, seed_losses in zip(seeds, losses):
+        seed.losses.extend(seed_losses)
+        seed.last_loss = seed_losses[-1]
+        seed.counters.updates += due
+    failed = [k for k, seed_losses in enumerate(losses) if not np.isfinite(seed_losses).all()]
+    return stop_seeds(failed, seeds, learner, env_step, progress) if failed else seeds
+
+
+def stop_seeds(
+    failed: list[int], seeds: list[SeedState], learner: Learner, env_step: int, progress: Progress
+) -> list[SeedState]:
+    """Stop the seeds at indices `failed` (a non-finite loss): one line each, their last
+    checkpoints stay; the others go on (the learner keeps them alone) and are returned.
+    SeedFailed when none is left."""
+    for k in failed:
+        progress.note(
+            f"Error: seed {seeds[k].seed}: a non-finite loss at environment step {env_step:,}; it stops here, "
+            f"its last checkpoint in {seeds[k].out_dir} stays" + ("" if len(failed) == len(seeds) else "; the other seeds go on")
+        )
+    kept = [k for k in range(len(seeds)) if k not in failed]
+    if not kept:
+        progress.close()
+        raise SeedFailed(f"every seed stopped on a non-finite loss at environment step {env_step:,}")
+    learner.keep(kept)
+    return [seeds[k] for k in kept]
+
+
+def refresh_progress(progress: Progress, seeds: list[SeedState], env_step: int, total_steps: int, refilling: bool,
+                     finished: bool, epsilon: float, stage_name: str) -> None:
+    """Rewrite the status line when it is due: the refill's progress while a resume refills,
+    else `progress_line` (also at the end)."""
+    if progress.due() and refilling:
+        progress.steps_per_second(env_step)  # starts the next refresh window
+        held = "/".join(f"{len(seed.buffer):,}/{seed.refill_to:,}" for seed in seeds)
+        progress.show(f"step {env_step:,}: refilling the replay buffer, {held} transitions")
+    elif progress.due() or finished:
+        rate = progress.steps_per_second(env_step)
+        progress.show(progress_line(seeds, env_step, total_steps, rate, epsilon, stage_name))
+
+
+def checkpoint_seeds(seeds: list[SeedState], learner: Learner, env_step: int, progress: Progress) -> None:
+    """Every seed's checkpoint in its own folder (`SeedState.checkpoint`)."""
+    for k, seed in enumerate(seeds):
+        progress.show(f"step {env_step:,}: {seed.label}checkpoint ({len(seed.buffer):,} transitions)")
+        seed.checkpoint(learner, k)
 
 
 # ---------------------------------------------------------------- the loop
@@ -608,20 +701,15 @@ def train_seeds(
     # --- seeding, networks and each seed's state (its generators, counters and replay buffer)
     learner = Learner(config.network, learner_config, [run.seed for run in runs])
     seeds = [SeedState(run, config, learner, k, load_replay, progress, many=len(runs) > 1) for k, run in enumerate(runs)]
-    steps = {seed.seed: seed.counters.env_step for seed in seeds}
-    if len(set(steps.values())) != 1:
-        raise ValueError(f"seeds trained together resume from one environment step; these are at {steps}")
-    env_step = seeds[0].counters.env_step
+    env_step = resumed_step(seeds)
     learner.refresh_actors()  # a resumed acting copy starts from the loaded weights
     progress.last_step, progress.last_time = env_step, time.perf_counter()  # the speed counts from here
     stage_name = stage_label(training_scenarios(schedule, data.reward, env_step))
     for seed in seeds:
         seed.enter_stage(training_scenarios(schedule, data.reward, env_step), announce=False)
     num_envs = schedule.num_envs
-    last_losses: list[float | None] = [None] * len(seeds)
     session_start, session_step = time.perf_counter(), env_step
-    refill_steps = 0  # environment steps of the refill: the schedule (stage, epsilon, step size) waits for them
-    refilling = any(seed.refill_to for seed in seeds)
+    refill = Refill(seeds, num_envs, data.learning_starts)  # a resume without its buffers refills them first
 
     with StopRequests() as stops:
         while env_step < schedule.total_steps:
@@ -632,7 +720,7 @@ def train_seeds(
                 for seed in seeds:
                     seed.enter_stage(stage, announce=True)
                 progress.note(f"environment step {env_step}: stage {stage_name}")
-            group_index = (env_step + refill_steps) // num_envs % len(stage)
+            group_index = (env_step + refill.steps) // num_envs % len(stage)
 
             # --- collect and store: every seed's worlds, each acted by its own network
             epsilon = linear_schedule(
@@ -643,34 +731,19 @@ def train_seeds(
             for actor, seed in zip(learner.actors, seeds):
                 seed.collect(actor, group_index, epsilon)
             previous_step = env_step
-            if refilling:  # a resume refills its buffers at the step it stopped, as if it had never stopped
-                refill_steps += num_envs
-                if all(len(seed.buffer) >= seed.refill_to for seed in seeds) and refill_steps >= data.learning_starts:
-                    refilling = False
-                    for seed in seeds:
-                        seed.refill_to = 0
-                    progress.note(f"environment step {env_step}: refilled in {refill_steps:,} steps, updates resume")
+            if refill.active:  # the schedule waits for the refill's steps
+                refill.advance(seeds, env_step, progress)
             else:
                 env_step += num_envs
                 for seed in seeds:
                     seed.counters.env_step = env_step
 
             # --- learn: the updates due in this batch step (one call for every seed), then the target copy
-            if not refilling and env_step >= data.learning_starts and min(len(seed.buffer) for seed in seeds) >= learner_config.batch_size:
+            if not refill.active and env_step >= data.learning_starts and min(len(seed.buffer) for seed in seeds) >= learner_config.batch_size:
                 # Updates for the environment steps after learning_starts: (T - learning_starts) / 4 in all.
                 due = crossings(max(previous_step, data.learning_starts), env_step, learner_config.train_frequency)
                 if due:
-                    losses = torch.stack([
-                        learner.update([seed.buffer.sample(learner_config.batch_size, seed.rng) for seed in seeds])
-                        for _ in range(due)
-                    ]).T.tolist()  # [S][due]: one read of the device a batch step
-                    for seed, seed_losses in zip(seeds, losses):
-                        seed.losses.extend(seed_losses)
-                        seed.counters.updates += due
-                    last_losses = [seed_losses[-1] for seed_losses in losses]
-                    failed = [k for k, seed_losses in enumerate(losses) if not np.isfinite(seed_losses).all()]
-                    if failed:
-                        seeds, last_losses = stop_seeds(failed, seeds, last_losses, learner, env_step, progress)
+                    seeds = update_seeds(learner, seeds, due, learner_config.batch_size, env_step, progress)
                 if crossings(previous_step, env_step, learner_config.target_network_frequency):
                     learner.copy_target()
             if crossings(previous_step, env_step, learner_config.actor_update_frequency or schedule.total_steps + 1):
@@ -682,46 +755,18 @@ def train_seeds(
             for k, seed in enumerate(seeds):
                 seed.counters.wall_seconds = seed.wall_before + session_seconds
                 if run.snapshot_frequency and (crossings(previous_step, env_step, run.snapshot_frequency) or finished):
-                    progress.show(f"step {env_step:,}: {seed.label}snapshot evaluation ({run.snapshot_episodes} episodes a scenario)")
-                    seed.snapshot(learner.online[k], learner, k, progress)
+                    seed.snapshot(learner, k, progress)
                 if finished or crossings(previous_step, env_step, run.log_frequency):
                     seed.log_train(epsilon, learning_rate, stage_name, env_step - session_step, session_seconds)
-            if progress.due() and refilling:
-                progress.steps_per_second(env_step)  # starts the next refresh window
-                held = "/".join(f"{len(seed.buffer):,}/{seed.refill_to:,}" for seed in seeds)
-                progress.show(f"step {env_step:,}: refilling the replay buffer, {held} transitions")
-            elif progress.due() or finished:
-                rate = progress.steps_per_second(env_step)
-                progress.show(progress_line(seeds, env_step, schedule.total_steps, rate, epsilon, stage_name, last_losses))
+            refresh_progress(progress, seeds, env_step, schedule.total_steps, refill.active, finished, epsilon, stage_name)
 
             # --- checkpoint every seed (the replay buffer first: state.json, written last, marks a whole checkpoint)
             stopping = stops.received is not None
             if finished or stopping or crossings(previous_step, env_step, run.checkpoint_frequency):
-                for k, seed in enumerate(seeds):
-                    progress.show(f"step {env_step:,}: {seed.label}checkpoint ({len(seed.buffer):,} transitions)")
-                    seed.checkpoint(learner, k)
+                checkpoint_seeds(seeds, learner, env_step, progress)
             if stopping:
                 progress.close()
                 raise TrainingStopped(stops.received, env_step, [seed.out_dir for seed in seeds])
 
     progress.close()
     return {seed.seed: seed.counters for seed in seeds}
-
-
-def stop_seeds(
-    failed: list[int], seeds: list[SeedState], last_losses: list[float | None], learner: Learner, env_step: int,
-    progress: Progress,
-) -> tuple[list[SeedState], list[float | None]]:
-    """Stop the seeds at indices `failed` (a non-finite loss): one line each, their last
-    checkpoints stay; the others go on (the learner keeps them alone). SeedFailed when none is left."""
-    for k in failed:
-        progress.note(
-            f"Error: seed {seeds[k].seed}: a non-finite loss at environment step {env_step:,}; it stops here, "
-            f"its last checkpoint in {seeds[k].out_dir} stays" + ("" if len(failed) == len(seeds) else "; the other seeds go on")
-        )
-    kept = [k for k in range(len(seeds)) if k not in failed]
-    if not kept:
-        progress.close()
-        raise SeedFailed(f"every seed stopped on a non-finite loss at environment step {env_step:,}")
-    learner.keep(kept)
-    return [seeds[k] for k in kept], [last_losses[k] for k in kept]
