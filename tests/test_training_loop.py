@@ -24,6 +24,7 @@ from training.stops import TrainingStopped
 from training.losses import huber, linear_schedule, quantile_huber_loss, quantile_td_target, td_target
 from training.buffer import ReplayBuffer
 from training.learner import Learner
+from training.networks import network_classes
 from training.train import (
     METRICS_FILE,
     epsilon_greedy,
@@ -214,6 +215,22 @@ def test_every_model_takes_the_shipped_settings_with_its_own_body():
         assert config.learner == Config().learner and config.data == Config().data and config.schedule == Config().schedule
     assert (Config.for_model("terl").network.layers, Config.for_model("terl-no-ts").network.heads) == (2, 4)
     assert (Config.for_model("iqn").network.layers, Config.for_model("iqn").network.heads) == (0, 0)
+
+
+def test_validating_a_config_builds_no_network(monkeypatch):
+    # The registry says which bodies have a transformer (QNetwork.has_transformer): no probe is built.
+    def refuse(self, *args, **kwargs):
+        raise AssertionError(f"{type(self).__name__} built while validating a config")
+
+    for cls in network_classes().values():
+        monkeypatch.setattr(cls, "__init__", refuse)
+    for name in network_classes():
+        assert Config.for_model(name).network.model == name
+    assert Config.of(model="terl-no-ts", hidden=32, layers=1, heads=2).network.layers == 1
+    with pytest.raises(ConfigError, match="model 'terl' has a transformer, needs >= 1"):
+        Config.of(layers=0)
+    with pytest.raises(ConfigError, match="heads: 8 must divide hidden 30"):
+        Config.of(hidden=30, heads=8)
 
 
 def test_config_file_with_an_unknown_key_is_an_error_naming_it(tmp_path):

@@ -17,7 +17,6 @@ knobs that were retired (`RETIRED_FIELDS`), at the value that kept them out of t
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import typing
 from dataclasses import dataclass, field
@@ -292,7 +291,7 @@ class Config:
 
         if model not in network_classes():
             raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(network_classes())}")
-        if _has_transformer(model):
+        if network_classes()[model].has_transformer:
             return Config.of(model=model)
         return Config.of(model=model, layers=0, heads=0)
 
@@ -396,21 +395,9 @@ def _has_type(value: Any, expected: Any) -> bool:
     return isinstance(value, expected)
 
 
-@functools.lru_cache(maxsize=None)
-def _has_transformer(model: str) -> bool:
-    """Whether a registered body has transformer layers (a tiny probe: such bodies record them).
-    The probe's weights are drawn from a forked generator: building a config never moves the
-    run's random stream (a resume reads its config after restoring the generators)."""
-    import torch
-
-    from training.networks import network_classes
-
-    with torch.random.fork_rng(devices=[]):
-        return network_classes()[model](hidden=4, layers=1, heads=1).num_layers > 0
-
-
 def _validate(config: Config) -> None:
-    # Imported here: the registry pulls in torch, which `Config` users may not need yet.
+    # Imported here: the registry pulls in torch, which `Config` users may not need yet. It is
+    # read, never built: no network is made, no random stream moves.
     from training.networks import network_classes
 
     network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
@@ -441,7 +428,7 @@ def _validate(config: Config) -> None:
                  "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
         if config.value(name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {config.value(name)}")
-    if _has_transformer(network.model):
+    if network_classes()[network.model].has_transformer:
         for name in ("layers", "heads"):
             if config.value(name) < 1:
                 raise ConfigError(f"{name}: model '{network.model}' has a transformer, needs >= 1, got {config.value(name)}")

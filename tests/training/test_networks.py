@@ -220,6 +220,14 @@ def test_build_network_rebuilds_model_from_its_config(name):
     assert model.config["name"] == name
 
 
+@pytest.mark.parametrize("name", ALL_MODELS)
+def test_a_body_records_layers_and_heads_when_its_class_says_it_has_a_transformer(name):
+    has_transformer = network_classes()[name].has_transformer
+    assert has_transformer == (name in TRANSFORMER_MODELS)
+    config = small_network(name).config
+    assert (config["layers"], config["heads"]) == ((2, 4) if has_transformer else (0, 0))
+
+
 def test_build_network_rejects_unknown_name():
     with pytest.raises(ValueError, match="unknown network 'transformer'"):
         build_network("transformer", 32, 2, 4)

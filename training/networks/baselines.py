@@ -1,8 +1,9 @@
 """Baselines and the `terl-no-re` ablation (policy.md section 1, paper section V).
 
-None of these bodies has a transformer: the constructors accept `layers` and
-`heads` so every model is built the same way, but record both as 0, the value
-the contract metadata gives for bodies without them.
+None of these bodies has a transformer (`QNetwork.has_transformer` false): the
+constructors accept `layers` and `heads` so every model is built the same way, and
+`QNetwork` records both as 0, the value the contract metadata gives for bodies
+without them.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class IQNBaseline(QNetwork):
     model_name = "iqn"
 
     def __init__(self, hidden: int = 256, layers: int = 0, heads: int = 0) -> None:
-        super().__init__(hidden, 0, 0)
+        super().__init__(hidden, layers, heads)
         self.encoders = EntityEncoders(hidden)
         self.body = mlp([4 * hidden, 2 * hidden, 2 * hidden, 2 * hidden, hidden])
         self.head = self.make_head()
@@ -92,7 +93,7 @@ class MeanBaseline(QNetwork):
     model_name = "mean"
 
     def __init__(self, hidden: int = 256, layers: int = 0, heads: int = 0) -> None:
-        super().__init__(hidden, 0, 0)
+        super().__init__(hidden, layers, heads)
         self.encoders = EntityEncoders(hidden)
         self.body = mlp([hidden, 2 * hidden, 2 * hidden, 2 * hidden, hidden])
         self.head = self.make_head()

@@ -229,8 +229,8 @@ def check_inputs(
 class QNetwork(nn.Module):
     """Base of every pursuer Q-network: one call signature, one head interface.
 
-    Subclasses set `model_name`, `has_target_selection` and `distributional`, build
-    their body in `__init__` and implement `embed`. `config` holds the construction
+    Subclasses set `model_name`, `has_transformer`, `has_target_selection` and
+    `distributional`, build their body in `__init__` and implement `embed`. `config` holds the construction
     arguments, so `build_network(**model.config)` rebuilds the same architecture.
 
     The head is an `IQNHead` (quantiles at the given fractions) except for `dqn`,
@@ -240,6 +240,9 @@ class QNetwork(nn.Module):
 
     model_name: ClassVar[str] = ""
     """Registry name, written to the ONNX metadata as `terl.model`."""
+    has_transformer: ClassVar[bool] = False
+    """True when the body has transformer layers (L, h >= 1); a body without records both as 0,
+    the value the contract metadata gives (read by config validation without building one)."""
     has_target_selection: ClassVar[bool] = False
     """True when forward returns target_weights [B, E]."""
     distributional: ClassVar[bool] = True
@@ -248,8 +251,8 @@ class QNetwork(nn.Module):
     def __init__(self, hidden: int, layers: int, heads: int) -> None:
         super().__init__()
         self.hidden_size = hidden
-        self.num_layers = layers
-        self.num_heads = heads
+        self.num_layers = layers if self.has_transformer else 0
+        self.num_heads = heads if self.has_transformer else 0
         self.num_actions = len(PURSUER_ACTIONS)
 
     @property

@@ -274,6 +274,7 @@ class TERLNetwork(QNetwork):
     """
 
     model_name = "terl"
+    has_transformer = True
     has_target_selection = True
 
     def __init__(self, hidden: int = 256, layers: int = 4, heads: int = 8) -> None:
@@ -304,6 +305,7 @@ class TERLNoTargetSelection(QNetwork):
     """Ablation `terl-no-ts`: the TERL transformer, Linear(2H -> H)([s, g]) straight into the IQN head."""
 
     model_name = "terl-no-ts"
+    has_transformer = True
 
     def __init__(self, hidden: int = 256, layers: int = 4, heads: int = 8) -> None:
         super().__init__(hidden, layers, heads)
