@@ -293,12 +293,12 @@ def test_a_one_file_method_beside_a_grids_seeds_counts_as_its_training_configs_s
 
 def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, tmp_path, monkeypatch):
     pytest.importorskip("matplotlib")
-    from terl_rt.cli import report as report_cli
+    from terl_rt.cli import report_comparison
 
     clean = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "clean", "--json")
     assert clean.exit_code == 0, clean.output
     assert not (tmp_path / "clean" / PROGRESS_FOLDER).exists()
-    evaluate = report_cli.evaluate_with_progress
+    evaluate = report_comparison.evaluate_with_progress
     calls = []
 
     cut_at = [4]
@@ -309,7 +309,7 @@ def test_a_comparison_cut_off_goes_on_from_the_evaluations_it_finished(seeded, t
             raise KeyboardInterrupt
         return evaluate(*args, **kwargs)
 
-    monkeypatch.setattr(report_cli, "evaluate_with_progress", cut_off_at_the_fourth)
+    monkeypatch.setattr(report_comparison, "evaluate_with_progress", cut_off_at_the_fourth)
     cut = invoke("report", "--policy", seeded, *TINY, "--out", tmp_path / "cut", "--json")
     assert cut.exit_code != 0 and not (tmp_path / "cut" / MARL_EVAL_NAME).exists()
     assert len(list((tmp_path / "cut" / PROGRESS_FOLDER).glob("*.json"))) == 3

@@ -1,16 +1,12 @@
 """`terl-rt report`: evaluate a policy on the paper's presets and write docs/results.md and .png;
 several policies: docs/comparison.md, .png and .json (over training seeds: and the
-marl-eval export)."""
+marl-eval export), run by terl_rt.cli.report_comparison."""
 
 from __future__ import annotations
 
 import json
 import shlex
 import textwrap
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
-from pathlib import Path
 
 import click
 
@@ -28,13 +24,12 @@ from terl_rt.cli.options import (
     policy_threads,
     report_episodes_option,
     resolve_scenarios,
-    run_backend,
     seed_option,
     threads_option,
     workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
-from terl_rt.evaluation.episodes import ScenarioResult
+from terl_rt.cli.report_comparison import ComparisonRun, compare
 from terl_rt.files import atomic_outputs
 from terl_rt.paper import seed_comparison
 from terl_rt.paper.figures import MatplotlibMissing, require_matplotlib
@@ -48,9 +43,7 @@ from terl_rt.paper.report import (
     where_it_stands,
     write_report,
 )
-from terl_rt.paper.runner import METHOD_FILES, SEED_FILES, ComparisonRunner, over_seeds, seeds_in_paper_order
-from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
-from terl_rt.sim.scenario import Scenario
+from terl_rt.policy.onnx_policy import policy_info
 
 
 def command_line(
@@ -223,72 +216,3 @@ def report_command(
         write_report(results, info, staging, command)
     if not as_json:
         click.echo(f"wrote {paths.markdown} and {paths.figure}")
-
-
-@dataclass(frozen=True)
-class ComparisonRun:
-    """The options of a `terl-rt report` that compares several policies, as given."""
-
-    scenario_names: tuple[str, ...]
-    episodes: int
-    beyond_episodes: int
-    """episodes in each world past the paper's (`seed_comparison.beyond_scenarios`)."""
-    seed: int
-    max_steps: int | None
-    workers: int | None
-    backend: str
-    address: str | None
-    threads: int | None
-    out_dir: Path
-    keep_progress: bool
-    """keep the runner's saved results once the files are written."""
-    as_json: bool
-    force: bool
-    command: str
-    """the command line, as the written files quote it."""
-
-    @contextmanager
-    def runner(self) -> Iterator[ComparisonRunner]:
-        """The resumable runner of these options: its evaluations on their backend, each with a
-        progress bar, its lines on stderr."""
-        with run_backend(self.backend, self.workers, self.address, self.threads) as backend:
-            def evaluate(policy: OnnxPolicy, scenario: Scenario, episodes: int) -> ScenarioResult:
-                (result,) = evaluate_with_progress(policy, [scenario], episodes, self.seed, backend=backend).results
-                return result
-
-            yield ComparisonRunner(self.out_dir, self.seed, self.max_steps, evaluate, lambda line: click.echo(line, err=True))
-
-
-def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> None:
-    """`terl-rt report` with several policies (or --beyond): over training seeds where
-    `over_seeds` says so or with `beyond`, else one policy a method; evaluate each in the
-    paper's order of methods (then by seed), print the claims' verdicts and write the files."""
-    seeds = beyond or over_seeds(policies)
-    files = SEED_FILES if seeds else METHOD_FILES
-    for name in files.values():
-        check_output(run.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], run.force)
-    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
-    if seeds:
-        try:
-            named = seeds_in_paper_order(policies)
-        except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
-            raise BadInput(f"--policy: {error}") from error
-        worlds = seed_comparison.beyond_scenarios() if beyond else []
-        with run.runner() as runner:
-            finished = runner.compare_seeds(named, scenarios, run.episodes, worlds, run.beyond_episodes, run.command)
-    else:
-        with run.runner() as runner:
-            finished = runner.compare_methods(policies, scenarios, run.episodes, run.command)
-    paths = {role: str(run.out_dir / name) for role, name in finished.files.items()}
-    # The results reach the terminal before any file is written: a full disk cannot lose them.
-    if run.as_json:
-        click.echo(json.dumps({**finished.data, "files": paths}))
-    else:
-        for verdict, claim in finished.claims:
-            click.echo(f"{verdict:<19} {claim}")
-    with atomic_outputs(run.out_dir, tuple(finished.files.values()), replace=run.force) as staging:
-        finished.write(staging)
-    runner.finish(run.keep_progress)
-    if not run.as_json:
-        wrote = [paths[role] for role in ("markdown", "figure", "json", "marl_eval") if role in paths]
-        click.echo(f"wrote {', '.join(wrote[:-1])} and {wrote[-1]}")
