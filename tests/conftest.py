@@ -1,12 +1,34 @@
-"""Fixtures shared by the test modules."""
+"""Fixtures shared by the test modules, and two settings every test runs under."""
 
 from __future__ import annotations
 
+import signal
+import sys
 from pathlib import Path
 
 import pytest
 from one_line import invoke
 from onnx_models import write_test_policy
+
+# A suite started in the background by a shell without job control starts with SIGINT ignored, and
+# every command a test starts would inherit that: the tests of Ctrl-C need it delivered.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """Tests that use torch run it on one thread: two threads that share the cores with another
+    process (a parallel test run, a training run) stall on each other, up to 7x slower. Tests of
+    the runtime alone never import torch, and this does not either."""
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
 
 
 @pytest.fixture(scope="session")

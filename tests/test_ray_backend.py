@@ -93,6 +93,7 @@ def test_the_policy_reaches_the_workers_without_its_file(tmp_path, backend):
             == evaluate_policy(policy, scenario, 2, 0, max_steps=10).per_episode)
 
 
+@pytest.mark.slow  # Ray's own retry of a lost task; a worker lost by the local pool: test_stopping_worker_runs
 def test_a_worker_killed_mid_batch_is_run_again_and_counted_once(policy, backend, tmp_path):
     log = tmp_path / "killed-worker.mcap"
     killed: list[str] = []
@@ -168,6 +169,7 @@ LONG_RUN = ("--episodes", "40", "--max-steps", "1000")
 """A run still under way when its log has grown (batched episodes finish fast): the runs below are stopped."""
 
 
+@pytest.mark.slow  # a Ray instance of its own (1-4 min on a loaded machine); Ctrl-C of the local pool in CI: test_worker_logs
 def test_ctrl_c_of_a_ray_run_writes_every_received_step_and_stops_ray(policy_path, tmp_path):
     log = tmp_path / "interrupted.mcap"
     process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)
@@ -184,6 +186,7 @@ def test_ctrl_c_of_a_ray_run_writes_every_received_step_and_stops_ray(policy_pat
     assert_log_keeps_complete_steps(log)  # closed on the way out, every episode complete
 
 
+@pytest.mark.slow  # the path of Ctrl-C above; SIGTERM of the local pool in CI: test_stopping_worker_runs
 def test_sigterm_of_a_ray_run_writes_every_received_step_and_exits_143(policy_path, tmp_path):
     """Not Ray's stack dump and SIGABRT: the run stops as for Ctrl-C, with status 128 + SIGTERM."""
     log = tmp_path / "terminated.mcap"
@@ -201,6 +204,7 @@ def test_sigterm_of_a_ray_run_writes_every_received_step_and_exits_143(policy_pa
     assert_log_keeps_complete_steps(log)  # closed on the way out, every episode complete
 
 
+@pytest.mark.slow  # a Ray instance of its own; SIGKILL of the local pool in CI: test_worker_logs
 def test_sigkill_of_a_ray_run_keeps_the_streamed_steps_and_ends_its_workers(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
     process = start_eval(policy_path, log, "--backend", "ray", *LONG_RUN)

@@ -253,6 +253,7 @@ def test_the_device_command_trains_the_cells_and_packs_the_resume_points_of_thos
 
 
 @pytest.mark.ray
+@pytest.mark.slow  # a Ray instance of its own: 2-5 min on a loaded machine
 def test_on_ray_each_cell_is_a_task_and_a_failing_one_gives_its_error_line(tmp_path):
     grid_ray = pytest.importorskip("training.grid_ray", reason="needs Ray: pip install -e '.[ray]'")
     cells = plan_grid(write_recipes(tmp_path / "recipes")[:1], [1, 2], tmp_path / "runs")
