@@ -207,7 +207,7 @@ def test_two_runs_started_together_on_one_log_never_replace_each_other(files, tm
 def test_a_forced_run_is_refused_while_another_run_writes_its_log(files, tmp_path):
     """--force replaces what was there before; it never races a run that is still writing."""
     log = tmp_path / "shared.mcap"
-    first = start_eval(files["policy"], log, "--episodes", "2", "--workers", "1")
+    first = start_eval(files["policy"], log, "--episodes", "2", "--max-steps", "150", "--workers", "1")
     try:
         wait_for_log(first, log)
         second = invoke(*eval_args(files, "--log", log, "--force"))

@@ -124,7 +124,7 @@ def test_with_json_stdout_holds_the_json_alone_when_a_ray_worker_dies(policy_pat
     """Ray prints the dying worker's `(raylet)` lines to the driver's stdout: they go to stderr."""
     log = tmp_path / "json.mcap"
     command = [sys.executable, "-m", "terl_rt", "eval", "--policy", str(policy_path), "--scenario", "small-11",
-               "--episodes", "4", "--max-steps", "200", "--backend", "ray", "--workers", "2", "--log", str(log), "--json"]
+               "--episodes", "4", "--max-steps", "60", "--backend", "ray", "--workers", "2", "--log", str(log), "--json"]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)
     try:

@@ -85,11 +85,14 @@ def _check_threads(threads: int | None) -> None:
 
 def session_options(threads: int | None = None) -> ort.SessionOptions:
     """Deterministic CPU session options: `threads` intra-op threads (None: onnxruntime's
-    default), one inter-op thread, sequential execution."""
+    default), one inter-op thread, sequential execution, and threads that sleep between calls."""
     _check_threads(threads)
     options = ort.SessionOptions()
     if threads is not None:
         options.intra_op_num_threads = threads
+    # onnxruntime's threads spin after each call by default, burning a core while the simulator
+    # steps between calls (docs/benchmarks.md, "onnxruntime's threads between calls").
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.use_deterministic_compute = True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
@@ -24,26 +25,29 @@ CALLER_METADATA = {"terl.training_steps": "1000", "terl.trained_on": "small"}
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    """name -> (small eval-mode model, path of its exported policy), exported once per module."""
+    """exported(name) -> (small eval-mode model, path of its exported policy), exported once per
+    module, when a test first asks for it (a parallel run spreads the tests over processes)."""
     folder = tmp_path_factory.mktemp("policies")
-    policies = {}
-    for name in ALL_MODELS:
+
+    @functools.cache
+    def export_model(name: str) -> tuple[torch.nn.Module, Path]:
         torch.manual_seed(0)
         model = build_network(name, hidden=32, layers=2, heads=4).eval()
-        policies[name] = (model, export_onnx(model, folder / f"{name}.onnx", CALLER_METADATA))
-    return policies
+        return model, export_onnx(model, folder / f"{name}.onnx", CALLER_METADATA)
+
+    return export_model
 
 
 @pytest.mark.parametrize("name", ALL_MODELS)
 def test_exported_policy_matches_torch_on_random_and_masked_inputs(exported, name):
-    model, path = exported[name]
+    model, path = exported(name)
     assert check_parity(model, path) <= 1e-4
 
 
 @pytest.mark.parametrize("name", ["terl", "terl-no-re", "iqn"])
 @pytest.mark.parametrize("teammates, evaders, obstacles", [(5, 8, 5), (2, 14, 7), (6, 20, 1)])
 def test_exported_policy_runs_with_any_slot_counts(exported, name, teammates, evaders, obstacles):
-    _, path = exported[name]
+    _, path = exported(name)
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     feed = {
         key: value.numpy()
@@ -57,7 +61,7 @@ def test_exported_policy_runs_with_any_slot_counts(exported, name, teammates, ev
 
 @pytest.mark.parametrize("name", ["terl", "dqn"])
 def test_exported_inputs_and_outputs_follow_contract(exported, name):
-    model, path = exported[name]
+    model, path = exported(name)
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     inputs = {i.name: (i.type, i.shape) for i in session.get_inputs()}
     assert inputs == {
@@ -75,12 +79,12 @@ def test_exported_inputs_and_outputs_follow_contract(exported, name):
 
 
 def test_exported_file_passes_onnx_checker(exported):
-    _, path = exported["terl"]
+    _, path = exported("terl")
     onnx.checker.check_model(onnx.load(str(path)), full_check=True)
 
 
 def test_metadata_holds_contract_keys_and_caller_keys(exported):
-    _, path = exported["terl"]
+    _, path = exported("terl")
     metadata = read_metadata(path)
     assert metadata["terl.contract"] == "1"
     assert metadata["terl.model"] == "terl"
@@ -90,13 +94,13 @@ def test_metadata_holds_contract_keys_and_caller_keys(exported):
 
 
 def test_metadata_records_zero_layers_and_heads_for_bodies_without_transformer(exported):
-    _, path = exported["iqn"]
+    _, path = exported("iqn")
     metadata = read_metadata(path)
     assert (metadata["terl.model"], metadata["terl.layers"], metadata["terl.heads"]) == ("iqn", "0", "0")
 
 
 def test_pursuer_action_table_round_trips_through_metadata(exported):
-    _, path = exported["dqn"]
+    _, path = exported("dqn")
     table = np.array(json.loads(read_metadata(path)["terl.pursuer_actions"]))
     np.testing.assert_array_equal(table, PURSUER_ACTIONS)
 
@@ -108,7 +112,7 @@ def test_caller_cannot_override_contract_metadata(tmp_path):
 
 
 def test_parity_check_fails_when_model_differs_from_file(exported):
-    model, path = exported["terl-no-re"]
+    model, path = exported("terl-no-re")
     changed = build_network(**model.config).eval()
     changed.load_state_dict(model.state_dict())
     with torch.no_grad():
@@ -151,7 +155,7 @@ def test_export_that_fails_parity_leaves_no_file(tmp_path, monkeypatch):
 
 
 def test_transformer_layers_export_as_one_attention_op_each(exported):
-    _, path = exported["terl"]
+    _, path = exported("terl")
     nodes = onnx.load(str(path)).graph.node
     made_by = {output: node.op_type for node in nodes for output in node.output}
     assert [node.op_type for node in nodes].count("Attention") == 2
@@ -161,7 +165,7 @@ def test_transformer_layers_export_as_one_attention_op_each(exported):
 
 @pytest.mark.parametrize("name", ["terl", "iqn"])
 def test_reexported_policy_computes_what_its_source_does(exported, tmp_path, name):
-    model, source = exported[name]
+    model, source = exported(name)
     target = export.reexport_onnx(source, tmp_path / "again.onnx")
     assert check_parity(model, target) <= 1e-4
     assert read_metadata(target)[export.META_REEXPORTED_FROM] == hashlib.sha256(source.read_bytes()).hexdigest()
@@ -181,7 +185,7 @@ def test_shipped_policy_of_the_older_graph_reexports_with_the_same_outputs(tmp_p
 
 
 def test_export_command_reexports_an_onnx_policy_and_refuses_a_missing_one(exported, tmp_path, capsys):
-    _, source = exported["terl"]
+    _, source = exported("terl")
     assert main(["export", str(source), "-o", str(tmp_path / "again.onnx")]) == 0
     assert read_metadata(tmp_path / "again.onnx")[export.META_REEXPORTED_FROM]
     assert main(["export", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "out.onnx")]) == 2

@@ -96,14 +96,14 @@ def sha256(path: Path) -> str:
 
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
-    """A 2 x 2 grid run to its end by the command, and shipped; tiny-dqn's seed 3 failed in an
-    earlier grid (its log is all there is of it)."""
+    """A 2 x 2 grid run to its end by the command, each method's seeds trained together, and
+    shipped; tiny-dqn's seed 3 failed in an earlier grid (its log is all there is of it)."""
     root = tmp_path_factory.mktemp("grid")
     recipes = write_recipes(root / "recipes")
     (root / "runs" / "tiny-dqn").mkdir(parents=True)
     (root / "runs" / "tiny-dqn" / "seed-3.log").write_text("ValueError: an earlier failure\n")
     arguments = ["grid", *map(str, recipes), "--seeds", "1,2", "--out", str(root / "runs"), "--processes", "2",
-                 "--ship", str(root / "exported")]
+                 "--seeds-per-process", "2", "--ship", str(root / "exported")]
     assert main(arguments) == 0
     return root, recipes, arguments
 
@@ -115,24 +115,10 @@ def test_a_grid_runs_every_cell_as_its_recipe_with_that_seed(grid):
         for seed in (1, 2):
             cell = root / "runs" / method / f"seed-{seed}"
             assert (cell / f"{method}.onnx").is_file()
-            assert "segment 2/2 (second, to 120 steps): starting" in (cell.with_name(f"seed-{seed}.log")).read_text()
+            log = (root / "runs" / method / "seeds-1-2.log").read_text()
+            assert f"seed {seed}, segment 2/2 (second, to 120 steps): starting" in log
             config = json.loads(OnnxPolicy(cell / f"{method}.onnx").metadata["terl.training_config"])
             assert config["run"]["seed"] == seed
-
-
-def test_a_grid_run_again_skips_finished_cells_and_resumes_a_cut_off_one_to_the_same_bytes(grid, tmp_path, capsys):
-    root, recipes, arguments = grid
-    again = tmp_path / "runs"
-    shutil.copytree(root / "runs", again)
-    recipe = load_recipe(recipes[0])
-    cut = again / "tiny-terl" / "seed-2"
-    shutil.rmtree(segment_folder(cut, 2, recipe.segments[1]))  # cut off after its first segment
-    (cut / "tiny-terl.onnx").unlink()
-    assert main(["grid", *map(str, recipes), "--seeds", "1,2", "--out", str(again)]) == 0
-    err = capsys.readouterr().err
-    assert "3 of 4 cells finished before this run: tiny-terl seed 1, tiny-dqn seed 1, tiny-dqn seed 2" in err
-    assert "tiny-terl seed 2: started" in err and err.count(": started") == 1
-    assert sha256(cut / "tiny-terl.onnx") == sha256(root / "runs" / "tiny-terl" / "seed-2" / "tiny-terl.onnx")
 
 
 # ---------------------------------------------------------------- shipping
@@ -225,31 +211,33 @@ def test_a_grid_stops_its_cells_with_checkpoints_when_its_time_is_up(tmp_path):
     assert len(outcome.stopped) == 4 and outcome.exit_status == 130
 
 
-def test_the_device_command_trains_the_cells_and_packs_the_resume_points_of_those_it_trained(tmp_path):
-    # scripts/device-grid.sh as a device machine runs it, here on tiny recipes that end in seconds.
-    root = Path(__file__).parents[2]
-    recipes = write_recipes(tmp_path / "recipes")
+def test_a_grid_run_again_resumes_a_cut_off_cell_to_the_same_bytes_and_the_device_command_packs_it_alone(
+        grid, tmp_path):
+    # scripts/device-grid.sh as a device machine runs it, on the finished grid with one cell cut off
+    # after its first segment: the grid skips the finished cells, trains that one on (here alone in
+    # its stack: SEEDS_PER_PROCESS) to the policy it had, and the script packs it and nothing else.
+    root, recipes, _ = grid
+    shutil.copytree(root / "runs", tmp_path / "runs")
+    cut = tmp_path / "runs" / "tiny-terl" / "seed-2"
+    shutil.rmtree(segment_folder(cut, 2, load_recipe(recipes[0]).segments[1]))
+    (cut / "tiny-terl.onnx").unlink()
     (tmp_path / "out").mkdir()
-    # Each method's seeds as stacks (SEEDS_PER_PROCESS; here one seed, so it stays cheap), learners on DEVICE.
     env = {**os.environ, "OUT": str(tmp_path / "out"), "GRID_OUT": str(tmp_path / "runs"), "PROCESSES": "2",
            "DEVICE": "cpu", "SEEDS_PER_PROCESS": "2", "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    done = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
-                          cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(["bash", str(Path(__file__).parents[2] / "scripts" / "device-grid.sh"), "5",
+                           *map(str, recipes), "--seeds", "1,2"],
+                          cwd=Path(__file__).parents[2], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    for method in METHODS:
-        with tarfile.open(tmp_path / "out" / f"{method}.tar.gz") as archive:
-            names = archive.getnames()
-        assert f"{method}/seeds-1.log" in names
-        assert f"{method}/seed-1/2-second/state.json" in names and f"{method}/seed-1/{method}.onnx" in names
-        assert any(name.endswith("/best/model.safetensors") for name in names)
-        assert not any(name.endswith(("replay.npz", ".run-lock")) or "/snapshots" in name for name in names)
-    # Called again, every cell is finished and none is trained: nothing is packed.
-    for archive in (tmp_path / "out").iterdir():
-        archive.unlink()
-    again = subprocess.run(["bash", str(root / "scripts" / "device-grid.sh"), "5", *map(str, recipes), "--seeds", "1"],
-                           cwd=root, env=env, capture_output=True, text=True, timeout=300)
-    assert again.returncode == 0, again.stderr
-    assert list((tmp_path / "out").iterdir()) == []
+    assert "3 of 4 cells finished before this run: tiny-terl seed 1, tiny-dqn seed 1, tiny-dqn seed 2" in done.stderr
+    assert "tiny-terl seeds 2: started" in done.stderr and done.stderr.count(": started") == 1
+    assert sha256(cut / "tiny-terl.onnx") == sha256(root / "runs" / "tiny-terl" / "seed-2" / "tiny-terl.onnx")
+    assert sorted(path.name for path in (tmp_path / "out").iterdir()) == ["tiny-terl.tar.gz"]
+    with tarfile.open(tmp_path / "out" / "tiny-terl.tar.gz") as archive:
+        names = archive.getnames()
+    assert "tiny-terl/seeds-2.log" in names and not any(name.startswith("tiny-terl/seed-1") for name in names)
+    assert "tiny-terl/seed-2/2-second/state.json" in names and "tiny-terl/seed-2/tiny-terl.onnx" in names
+    assert any(name.endswith("/best/model.safetensors") for name in names)
+    assert not any(name.endswith(("replay.npz", ".run-lock")) or "/snapshots" in name for name in names)
 
 
 @pytest.mark.ray
@@ -361,15 +349,16 @@ def test_seeds_per_process_stacks_each_methods_unfinished_cells_in_seed_order(tm
     assert stack_cells(cells, 1) == cells
 
 
-@pytest.mark.slow  # the device command's test trains stacked seeds in CI; this adds shipping them
-def test_a_grid_of_stacked_seeds_lays_out_and_ships_every_seed_as_cells_alone_do(tmp_path):
-    recipes = write_recipes(tmp_path / "recipes")[:1]
-    arguments = ["grid", str(recipes[0]), "--seeds", "1,2", "--out", str(tmp_path / "runs"), "--seeds-per-process", "2",
+@pytest.mark.slow  # four cells from scratch; CI trains seeds together (the grid fixture) and one seed a stack
+def test_a_grid_of_cells_alone_ships_the_policies_of_stacked_seeds(grid, tmp_path):
+    root, recipes, _ = grid
+    arguments = ["grid", *map(str, recipes), "--seeds", "1,2", "--out", str(tmp_path / "runs"), "--processes", "2",
                  "--ship", str(tmp_path / "exported")]
     assert main(arguments) == 0
-    for seed in (1, 2):
-        policy = OnnxPolicy(tmp_path / "exported" / f"tiny-terl-seed-{seed}.onnx")
-        assert policy.metadata[META_SEED] == str(seed)
-        assert json.loads(policy.metadata["terl.training_config"])["run"]["seed"] == seed
-    assert "seed 2, segment 2/2 (second, to 120 steps): starting" in (tmp_path / "runs" / "tiny-terl" / "seeds-1-2.log").read_text()
-    assert main(arguments) == 0  # run again: both seeds finished, nothing to do
+    for method in METHODS:
+        for seed in (1, 2):
+            assert "segment 2/2 (second, to 120 steps): starting" in (
+                tmp_path / "runs" / method / f"seed-{seed}.log").read_text()
+            name = f"{method}-seed-{seed}.onnx"
+            assert sha256(tmp_path / "exported" / name) == sha256(root / "exported" / name)
+    assert main(arguments) == 0  # run again: every cell finished, nothing to do

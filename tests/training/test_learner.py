@@ -200,7 +200,8 @@ def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(tmp_path):
     run, out = tmp_path / "run", tmp_path / "medium"
     before = train(tiny(snapshot_frequency=160), run, show_progress=False)
     assert before.best_score is not None
-    medium = tiny(curriculum=False, scenario="medium-48", num_envs=2, total_steps=640, snapshot_frequency=80)
+    medium = tiny(curriculum=False, scenario="medium-48", num_envs=2, total_steps=640, snapshot_frequency=80,
+                  buffer_size=1000)  # the refill fills it
     assert fine_tune(run, out, medium, tmp_path) == 0
 
     after = read_counters(out)
@@ -218,7 +219,8 @@ def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(
     run, out = tmp_path / "run", tmp_path / "published"
     train(tiny(), run, show_progress=False)
     assert (run / REPLAY_FILE).is_file()
-    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560), tmp_path) == 0
+    assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560,
+                                        buffer_size=1000), tmp_path) == 0
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
     assert "its saved replay buffer was stored under other reward, success_ends_transitions" in note
     assert "evaluated anew" not in note  # same scenarios: the best carries on

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import Config
 from training.stops import StopRequests
@@ -49,9 +50,5 @@ def test_sigterm_ends_the_batch_step_writes_a_checkpoint_and_the_run_goes_on(tmp
     assert run.returncode == 130, stderr
     stopped_at = int(re.search(r"stopped by SIGTERM at environment step ([\d,]+)", stderr).group(1).replace(",", ""))
     assert read_counters(out).env_step == stopped_at > 0  # no checkpoint was due: the stop wrote it
-    resumed = subprocess.run(
-        [sys.executable, "-m", "training", "train", "--resume", str(out), "--total-steps", str(stopped_at + 40), "--quiet"],
-        cwd=ROOT, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=120,
-    )
-    assert resumed.returncode == 0, resumed.stderr
+    assert main(["train", "--resume", str(out), "--total-steps", str(stopped_at + 40), "--quiet"]) == 0
     assert read_counters(out).env_step == stopped_at + 40
