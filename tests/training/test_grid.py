@@ -25,6 +25,8 @@ from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
 from training.ship import shipped_line
 from terl_rt.policy.contract import META_METHOD, META_SEED
 
+REPOSITORY = Path(__file__).resolve().parents[2]
+
 BASE = """
 ships = "exported/base.onnx"
 
@@ -224,9 +226,8 @@ def test_a_grid_run_again_resumes_a_cut_off_cell_to_the_same_bytes_and_the_devic
     (tmp_path / "out").mkdir()
     env = {**os.environ, "OUT": str(tmp_path / "out"), "GRID_OUT": str(tmp_path / "runs"), "PROCESSES": "2",
            "DEVICE": "cpu", "SEEDS_PER_PROCESS": "2", "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    done = subprocess.run(["bash", str(Path(__file__).parents[2] / "scripts" / "device-grid.sh"), "5",
-                           *map(str, recipes), "--seeds", "1,2"],
-                          cwd=Path(__file__).parents[2], env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(["bash", str(REPOSITORY / "scripts" / "device-grid.sh"), "5", *map(str, recipes),
+                           "--seeds", "1,2"], cwd=REPOSITORY, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "3 of 4 cells finished before this run: tiny-terl seed 1, tiny-dqn seed 1, tiny-dqn seed 2" in done.stderr
     assert "tiny-terl seeds 2: started" in done.stderr and done.stderr.count(": started") == 1
@@ -302,7 +303,6 @@ with holding_run_folder(Path(sys.argv[1])):
 
 
 def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of_one_cut_off(tmp_path):
-    root = Path(__file__).parents[2]
     segment_files = ("config.json", "state.json", "metrics.jsonl", "model.safetensors", "target.safetensors",
                      "optimizer.pt", "replay.npz", "snapshots/80000/model.safetensors", "best/model.safetensors",
                      "best/config.json", "best/state.json", "best/optimizer.pt", "best/target.safetensors")
@@ -316,7 +316,7 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
         if finished:
             (folder / "iqn.onnx").write_text("onnx")
         folder.with_suffix(".log").write_text("log")
-    done = subprocess.run([sys.executable, str(root / "scripts" / "keep-cells.py"), str(tmp_path / "runs"),
+    done = subprocess.run([sys.executable, str(REPOSITORY / "scripts" / "keep-cells.py"), str(tmp_path / "runs"),
                            str(tmp_path / "kept")], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == ["iqn/seed-1: finished", "iqn/seed-2: cut off"]
