@@ -70,6 +70,43 @@ def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path
     return save_figure(fig, out_path, title)
 
 
+def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "") -> Path:
+    """Write a PNG of learning curves of kept snapshots, a column a preset and a colour a run.
+
+    `curves`: label -> the run's curve points (`training.snapshot_curves.with_interval`: step,
+    scenario, success rate with its exact interval, collision ratio). Top row: success rate, its
+    95 % interval as error bars; bottom row: collision ratio. x axis: environment steps.
+    """
+    plt = _pyplot()
+    presets = list(dict.fromkeys(point["scenario"] for points in curves.values() for point in points))
+    if not presets:
+        raise CurvesError("no snapshot evaluation to plot")
+    fig, axes = plt.subplots(2, len(presets), figsize=(4 * len(presets), 6), sharex=True, squeeze=False)
+    for column, preset in enumerate(presets):
+        success, collisions = axes[0][column], axes[1][column]
+        for index, (label, points) in enumerate(curves.items()):
+            shown = [point for point in points if point["scenario"] == preset]
+            steps = [point["env_step"] for point in shown]
+            rates = [point["success_rate"] for point in shown]
+            below = [rate - point["success_low"] for rate, point in zip(rates, shown)]
+            above = [point["success_high"] - rate for rate, point in zip(rates, shown)]
+            success.errorbar(steps, rates, yerr=[below, above], fmt="o-", color=f"C{index % 10}", capsize=2,
+                             linewidth=1, markersize=3, label=label)
+            collisions.plot(steps, [point["collision_ratio_mean"] for point in shown], "o-", color=f"C{index % 10}",
+                            linewidth=1, markersize=3)
+        episodes = sorted({point["episodes"] for points in curves.values() for point in points
+                           if point["scenario"] == preset})
+        success.set_title(f"{preset} ({'/'.join(map(str, episodes))} episodes)")
+        success.set_ylim(-0.05, 1.05)
+        collisions.set_xlabel("environment steps")
+        for axis in (success, collisions):
+            axis.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success (exact 95 % interval)")
+    axes[1][0].set_ylabel("collision ratio")
+    axes[0][0].legend(loc="upper left", fontsize=8)
+    return save_figure(fig, out_path, title)
+
+
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
     """Write a PNG of the training curves of a run.
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from training.cli.options import output_option, run_folder
+from training.cli.options import output_option, run_folder, set_threads
 
 
 @click.command("plot")
@@ -44,3 +44,63 @@ def snapshots_command(run: Path, as_json: bool) -> None:
         return
     preset = snapshots[-1]["evaluations"][-1]["scenario"]
     click.echo("\n".join(snapshot_table(snapshots, preset)))
+
+
+@click.command("curve")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path, exists=True, file_okay=False),
+                metavar="RUN_DIR...")
+@click.option("--scenario", "presets", multiple=True, default=("small-15", "large-80", "cc-28"), show_default=True,
+              metavar="PRESET", help="Preset to evaluate every kept snapshot on (repeat for more).")
+@click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True)
+@click.option("--seed", type=int, default=6000, show_default=True, help="Seed of the first episode (episode k: seed + k).")
+@click.option("--max-steps", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="Steps before an episode is cut off (a failure).")
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True, help="torch intra-op threads.")
+@output_option("FILE.png", "Also plot the curves into this PNG.", required=False)
+@click.option("--title", default="", help="Figure title.")
+@click.option("--json", "as_json", is_flag=True, help="Print every point as one JSON list instead of a table.")
+def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: int, seed: int, max_steps: int,
+                  threads: int, output: Path | None, title: str, as_json: bool) -> None:
+    """Learning curves of runs' kept snapshots (RUN_DIR/snapshots/<step>/, `keep_snapshots`):
+    each network evaluated greedy on every --scenario, as the run's snapshots are (in-process,
+    episode k with seed --seed + k). Each evaluation is stored beside its network
+    (snapshots/<step>/evaluations.json) and the run's own snapshot evaluations (metrics.jsonl)
+    are read back, so a second call evaluates only new snapshots or presets. Prints a table
+    (success with its exact 95 % interval, collision ratio; --json for scripts); -o plots a
+    column a preset, a colour a run.
+
+    \b
+    Example (the authors' protocol, issue 53):
+      python -m training curve runs/authors/terl-authors/seed-{1,2,3}/1-curriculum -o curves.png
+    """
+    from terl_rt.sim.scenario import Scenario, ScenarioError
+    from training.curves import plot_snapshot_curves
+    from training.snapshot_curves import run_seed, snapshot_curve, with_interval
+
+    for preset in presets:
+        try:
+            Scenario.preset(preset)
+        except ScenarioError as error:
+            raise click.BadParameter(str(error), param_hint="--scenario") from error
+    set_threads(threads)
+    seeds = [run_seed(run) for run in runs]
+    labels = [f"seed {seed}" for seed in seeds] if len(set(seeds)) == len(seeds) else [str(run) for run in runs]
+    curves = {
+        label: [with_interval(point) for point in snapshot_curve(
+            run, presets, episodes, seed, max_steps, announce=lambda text: click.echo(text, err=True))]
+        for label, run in zip(labels, runs)
+    }
+    if as_json:
+        click.echo(json.dumps([{"run": label, **point} for label, points in curves.items() for point in points]))
+    else:
+        click.echo("| run | step | preset | success [95 % interval] | travel time | collision ratio |")
+        click.echo("|---|---:|---|---|---:|---:|")
+        for label, points in curves.items():
+            for point in points:
+                click.echo(
+                    f"| {label} | {point['env_step']:,} | {point['scenario']} | {point['success_rate']:.2f} "
+                    f"[{point['success_low']:.2f}, {point['success_high']:.2f}] | {point['travel_time_s_mean']:.1f} s | "
+                    f"{point['collision_ratio_mean']:.3f} |"
+                )
+    if output is not None:
+        click.echo(f"{plot_snapshot_curves(curves, output, title)}: learning curves of {len(runs)} runs", err=True)

@@ -9,7 +9,7 @@ from terl_rt.command_line import TerlGroup
 from training.card import CardError
 from training.cli.bench import bench_command
 from training.cli.card import card_command
-from training.cli.curves import plot_command, snapshots_command
+from training.cli.curves import curve_command, plot_command, snapshots_command
 from training.cli.export import export_command
 from training.cli.grid import grid_command
 from training.cli.run import run_command
@@ -38,8 +38,8 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.ensure_object(dict)["debug"] = debug
 
 
-for command in (run_command, grid_command, train_command, export_command, card_command, snapshots_command, plot_command,
-                values_command, bench_command):
+for command in (run_command, grid_command, train_command, export_command, card_command, snapshots_command, curve_command,
+                plot_command, values_command, bench_command):
     cli.add_command(command)
 
 

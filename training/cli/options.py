@@ -80,9 +80,9 @@ def run_folder(name: str = "RUN_DIR"):
     return click.argument("run", type=click.Path(path_type=Path, exists=True, file_okay=False), metavar=name)
 
 
-def output_option(metavar: str, help_text: str | None = None):
-    """-o/--output, required."""
-    return click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar=metavar,
+def output_option(metavar: str, help_text: str | None = None, required: bool = True):
+    """-o/--output (required unless told)."""
+    return click.option("-o", "--output", type=click.Path(path_type=Path), required=required, metavar=metavar,
                         help=help_text)
 
 
