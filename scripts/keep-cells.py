@@ -8,10 +8,12 @@ Every cell of GRID_OUT (or those named) replaces its copy under KEPT, with its l
   model, config and state of its best/ snapshot, and the exported file (`python -m training
   grid --ship` ships from these);
 - a cell cut off: all of that and its last segment's weights and optimizer, its resume point
-  (the segments before it are done: their weights are no longer read).
-Replay buffers (hundreds of MB; a resumed cell refills its buffer first), the snapshots beside
-best/ and run locks stay behind. Resume everything with `cp -r checkpoints/comparison
-runs/comparison` and the same `python -m training grid` command (docs/training.md).
+  (the segments before it are done: their weights are no longer read);
+- either: the networks of its kept snapshots (snapshots/<step>/, `keep_snapshots`: half a MB
+  each), which a learning curve evaluates after the run.
+Replay buffers (hundreds of MB; a resumed cell refills its buffer first) and run locks stay
+behind. Resume everything with `cp -r checkpoints/comparison runs/comparison` and the same
+`python -m training grid` command (docs/training.md).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import shutil
 import sys
 from pathlib import Path
 
-LEFT_BEHIND = {"replay.npz", "snapshots", ".run-lock"}
+LEFT_BEHIND = {"replay.npz", ".run-lock"}
 WEIGHTS = {"model.safetensors", "target.safetensors", "optimizer.pt"}
 """A segment's resume point, kept for a cell cut off only (best/ keeps its own model)."""
 

@@ -326,7 +326,8 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
                       if p.is_file())
 
     shipped = [f"{segment}/{name}" for segment in ("1-curriculum", "2-last-stage") for name in (
-        "best/config.json", "best/model.safetensors", "best/state.json", "config.json", "metrics.jsonl", "state.json")]
+        "best/config.json", "best/model.safetensors", "best/state.json", "config.json", "metrics.jsonl", "state.json",
+        "snapshots/80000/model.safetensors")]
     assert files("iqn/seed-1") == sorted(shipped + ["iqn.onnx"])
     assert files("iqn/seed-2") == sorted(shipped + [
         f"{segment}/best/{name}" for segment in ("1-curriculum", "2-last-stage") for name in ("optimizer.pt",
