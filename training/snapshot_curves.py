@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from terl_rt.evaluation.stats import success_interval
+from terl_rt.files import atomic_output
 from terl_rt.sim.scenario import Scenario
 from training.checkpoint import STATE_FILE, load_network, read_config
 from training.curves import CurvesError, read_metrics
@@ -25,6 +26,8 @@ from training.train import METRICS_FILE, SNAPSHOTS_FOLDER, greedy_evaluation
 
 EVALUATIONS_FILE = "evaluations.json"
 """A kept snapshot's stored evaluations, beside its network: a JSON list of records."""
+KEYS = {"scenario", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "collision_ratio_mean"}
+"""What every evaluation record holds: what it evaluated, and what a curve shows of it."""
 
 
 def kept_snapshots(run: Path) -> list[tuple[int, Path]]:
@@ -70,8 +73,9 @@ def read_stored(folder: Path) -> list[dict[str, Any]]:
         stored = json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise CurvesError(f"{path}: not JSON ({error}); delete it to evaluate again") from None
-    if not isinstance(stored, list):
-        raise CurvesError(f"{path}: not a list of evaluations; delete it to evaluate again")
+    if not isinstance(stored, list) or not all(isinstance(record, dict) and KEYS <= record.keys() for record in stored):
+        raise CurvesError(f"{path}: not a list of evaluations (each with {', '.join(sorted(KEYS))}); "
+                          "delete it to evaluate again")
     return stored
 
 
@@ -100,9 +104,8 @@ def snapshot_curve(
                 settings = replace(config.run, snapshot_episodes=episodes, eval_seed=seed, eval_max_steps=max_steps)
                 evaluation = {**greedy_evaluation(model, scenario, settings), "max_steps": max_steps}
                 stored.append(evaluation)
-                temporary = folder / f"{EVALUATIONS_FILE}.tmp"
-                temporary.write_text(json.dumps(stored, indent=1) + "\n")
-                temporary.replace(folder / EVALUATIONS_FILE)  # whole, or the old list
+                with atomic_output(folder / EVALUATIONS_FILE, replace=True) as temporary:  # whole, or the old list
+                    temporary.write_text(json.dumps(stored, indent=1) + "\n")
             points.append({"env_step": step, **evaluation})
     return points
 

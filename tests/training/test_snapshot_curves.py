@@ -76,5 +76,9 @@ def test_a_curve_names_what_it_cannot_read(tmp_path, capsys):
     assert main(["curve", str(run), *CURVE]) == 2
     assert f"{run / 'snapshots' / '320' / EVALUATIONS_FILE}: not JSON" in capsys.readouterr().err
 
+    (run / "snapshots" / "320" / EVALUATIONS_FILE).write_text('[{"scenario": "small-11"}]')
+    assert main(["curve", str(run), *CURVE]) == 2
+    assert "not a list of evaluations (each with collision_ratio_mean, episodes" in capsys.readouterr().err
+
     assert main(["curve", str(run), "--scenario", "huge-500"]) == 2
     assert "unknown scenario 'huge-500'" in capsys.readouterr().err
