@@ -106,6 +106,17 @@ class Recipe:
         """Hex SHA-256 of the recipe file (a model card names the recipe by path and hash)."""
         return hashlib.sha256(self.path.read_bytes()).hexdigest()
 
+    @property
+    def notes(self) -> list[str]:
+        """The recipe's own account of itself, its leading comment lines without their "# "
+        (what it follows, where it differs): a model card quotes them."""
+        lines = []
+        for line in self.path.read_text().splitlines():
+            if not line.startswith("#"):
+                break
+            lines.append(line[2:] if line.startswith("# ") else line[1:])
+        return lines
+
 
 def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     """Read and check a recipe file (and the recipe it extends); RecipeError names the file, the

@@ -68,7 +68,8 @@ def method_card(
     metrics: dict[Cell, list[dict[str, Any]]], figure: Path, machine: str,
 ) -> str:
     """The markdown card of one method of a grid: its recipe, every seed's weights, the network,
-    the settings, and a row per seed (a seed not shipped says so and names its log)."""
+    the settings, the recipe's notes (`Recipe.notes`: where it follows the paper or differs), and
+    a row per seed (a seed not shipped says so and names its log)."""
     recipe = seeds[0][1]
     config = recipe.segments[-1].config
     name = PAPER_NAMES.get(config.network.model, config.network.model)
@@ -94,6 +95,7 @@ def method_card(
         + ".",
         shipped_line(recipe),
         "",
+        *(["## The recipe's notes", "", "```text", *recipe.notes, "```", ""] if recipe.notes else []),
         "## Seeds",
         "",
         f"![every seed's curves]({figure.name})",

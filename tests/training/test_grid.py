@@ -59,7 +59,8 @@ name = "second"
 steps = 120
 """
 METHODS = {  # a method's recipe: the base with its network
-    "tiny-terl": 'extends = "base.toml"\nships = "exported/comparison/tiny-terl.onnx"\n',
+    "tiny-terl": '# Tiny TERL: its notes, quoted by its card.\n#\n#   an indented line\n'
+                 'extends = "base.toml"\nships = "exported/comparison/tiny-terl.onnx"\n',
     "tiny-dqn": 'extends = "base.toml"\nships = "exported/comparison/tiny-dqn.onnx"\n[network]\nmodel = "dqn"\n'
                 "layers = 0\nheads = 0\n",
 }
@@ -145,6 +146,9 @@ def test_a_method_card_lists_every_seeds_weights_figures_and_curves(grid):
         assert f"\n| {seed} | 120 | " in card
     assert "![every seed's curves](tiny-dqn-seeds.png)" in card
     assert (root / "exported" / "tiny-dqn-seeds.png").stat().st_size > 0
+    assert "## The recipe's notes" not in card  # its recipe has none
+    notes = "## The recipe's notes\n\n```text\nTiny TERL: its notes, quoted by its card.\n\n  an indented line\n```\n"
+    assert notes in (root / "exported" / "tiny-terl.md").read_text()
 
 
 def test_a_card_says_whether_its_seeds_ship_the_best_snapshot_or_the_last_checkpoint(tmp_path):
