@@ -78,6 +78,8 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
     95 % interval as error bars; bottom row: collision ratio. x axis: environment steps.
     """
     plt = _pyplot()
+    from matplotlib.ticker import EngFormatter
+
     presets = list(dict.fromkeys(point["scenario"] for points in curves.values() for point in points))
     if not presets:
         raise CurvesError("no snapshot evaluation to plot")
@@ -97,9 +99,10 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
         episodes = sorted({point["episodes"] for points in curves.values() for point in points
                            if point["scenario"] == preset})
         success.set_title(f"{preset} ({'/'.join(map(str, episodes))} episodes)")
-        success.set_ylim(-0.05, 1.05)
         collisions.set_xlabel("environment steps")
+        collisions.xaxis.set_major_formatter(EngFormatter())  # 500 k, 1 M
         for axis in (success, collisions):
+            axis.set_ylim(-0.05, 1.05)
             axis.grid(alpha=0.3)
     axes[0][0].set_ylabel("success (exact 95 % interval)")
     axes[1][0].set_ylabel("collision ratio")
