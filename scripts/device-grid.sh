@@ -5,11 +5,13 @@
 # them all; rollouts on the CPU cores, one process a stack), and brings back each method's resume
 # points in $OUT. From the repository root, on the device machine:
 #
-#   scripts/device-grid.sh 8 recipes/terl-authors.toml --seeds 1-3
+#   cp -r checkpoints/authors runs/authors && GRID_OUT=runs/authors SEEDS_PER_PROCESS=2 \
+#       scripts/device-grid.sh 8 recipes/terl-authors.toml --seeds 1-3
 #   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
 #
-# (the cp where the grid has committed resume points: scripts/keep-cells.py). The committed
-# resume points travel with the tree (checkpoints/comparison; replay buffers are
+# (the cp where the grid has committed resume points: scripts/keep-cells.py; seeds trained
+# together resume from one step, so the stacks are those the resume points were trained in).
+# The committed resume points travel with the tree (checkpoints/<grid>; replay buffers are
 # not committed, so a resumed cell refills its buffer outside the schedule first). The runtime's
 # packages that the device image lacks travel as wheels (.whl, carried; scripts/device-wheels.sh
 # says how to make them). Then the cells run as `python -m training grid RECIPE...
@@ -17,8 +19,8 @@
 # runs/comparison; PROCESSES: default every core), which stops them with whole checkpoints when
 # the minutes are up, and the cells that this call trained (their folders and logs; finished
 # cells that it did not touch stay behind, so that the archives keep under the 16 MiB a file
-# that comes back) are packed, without replay buffers and snapshots (best/ stays), one archive a
-# method: $OUT/<method>.tar.gz. Unpack with `tar xzf METHOD.tar.gz -C runs/comparison`.
+# that comes back) are packed, without replay buffers (best/ and kept snapshots' networks stay),
+# one archive a method: $OUT/<method>.tar.gz. Unpack with `tar xzf METHOD.tar.gz -C runs/comparison`.
 # First lent on 2026-11-27: 6 cells on an H100 machine's 16 cores, 8 minutes, reached 60-116 k
 # steps each from scratch (docs/training.md, "Speed").
 set -euo pipefail
@@ -45,7 +47,7 @@ for folder in "$grid_out"/*/; do
         fi
     done
     if [ ${#cells[@]} -gt 0 ]; then
-        tar czf "$OUT/$method.tar.gz" --exclude=replay.npz --exclude=snapshots --exclude=.run-lock -C "$grid_out" "${cells[@]}"
+        tar czf "$OUT/$method.tar.gz" --exclude=replay.npz --exclude=.run-lock -C "$grid_out" "${cells[@]}"
     fi
 done
 ls -l "$OUT"
