@@ -83,8 +83,9 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
         except ScenarioError as error:
             raise click.BadParameter(str(error), param_hint="--scenario") from error
     set_threads(threads)
-    seeds = [run_seed(run) for run in runs]
-    labels = [f"seed {seed}" for seed in seeds] if len(set(seeds)) == len(seeds) else [str(run) for run in runs]
+    trained_seeds = [run_seed(run) for run in runs]
+    labels = ([f"seed {trained}" for trained in trained_seeds] if len(set(trained_seeds)) == len(runs)
+              else [str(run) for run in runs])
     curves = {
         label: [with_interval(point) for point in snapshot_curve(
             run, presets, episodes, seed, max_steps, announce=lambda text: click.echo(text, err=True))]
