@@ -12,6 +12,7 @@ from onnx_models import write_broken_policy, write_random_bytes, write_test_poli
 from PIL import Image
 from tiny_worlds import capture_scenario
 
+import terl_rt.cli.eval
 import terl_rt.policy.shipped
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA
@@ -69,6 +70,22 @@ def test_eval_json_is_one_object_with_the_documented_keys(files):
     (row,) = out["scenarios"]
     assert set(row) == ROW_KEYS
     assert (row["name"], row["episodes"], row["steps_mean"]) == ("small-11", 2, 4.0)
+
+
+def test_eval_json_sends_what_the_run_prints_to_stderr(files, monkeypatch):
+    # Ray prints a dying worker's `(raylet)` report to the driver's stdout while the episodes run
+    # (the real thing, a Ray worker killed under --json, is tests/test_ray_backend.py's, marked slow).
+    def printing_run(*args, **kwargs):
+        print("(raylet) A worker died or was killed while executing a task.")
+        return evaluate(*args, **kwargs)
+
+    evaluate = terl_rt.cli.eval.evaluate_with_progress
+    monkeypatch.setattr(terl_rt.cli.eval, "evaluate_with_progress", printing_run)
+    result = invoke("eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "1",
+                    "--max-steps", "2", "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["scenarios"][0]["episodes"] == 1  # stdout holds the JSON alone
+    assert "(raylet) A worker died" in result.stderr
 
 
 def test_eval_reads_a_scenario_file_and_shows_no_progress_off_a_terminal(files):

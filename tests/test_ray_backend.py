@@ -120,6 +120,7 @@ def test_a_worker_killed_mid_batch_is_run_again_and_counted_once(policy, backend
     assert log.read_bytes() == (tmp_path / "local.mcap").read_bytes()  # no step twice, none lost
 
 
+@pytest.mark.slow  # a second Ray instance (13 s idle, racy on a loaded machine); in CI: test_cli's --json test
 def test_with_json_stdout_holds_the_json_alone_when_a_ray_worker_dies(policy_path, tmp_path):
     """Ray prints the dying worker's `(raylet)` lines to the driver's stdout: they go to stderr."""
     log = tmp_path / "json.mcap"

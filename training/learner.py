@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 import torch
 
+from training.adam import RowAdam, one_seed_state_dict
 from training.buffer import ReplayBatch, trim_padding
 from training.checkpoint import network_from_config
 from training.config import LearnerConfig, NetworkConfig
@@ -88,16 +89,10 @@ class Learner:
             if self.config.actor_update_frequency else self.online
         )
         """[S] the networks that act in training: `online`, or copies of it (LearnerConfig.actor_update_frequency)."""
-        # One Adam parameter a seed (its row of the flat weights), so each keeps its own step count.
-        rows = []
-        for k in range(len(self.seeds)):
-            row = torch.nn.Parameter(online[k])
-            row.grad = self.gradients[k]
-            rows.append(row)
-        self.optimizer = torch.optim.Adam(rows, lr=self.config.learning_rate, fused=True)
-        for row, state in zip(rows, adam_states):
-            if state is not None:
-                self.optimizer.state[row] = state
+        # Adam over each seed's row of the flat weights, so each keeps its own step count.
+        seeds = range(len(self.seeds))
+        self.optimizer = RowAdam([online[k] for k in seeds], [self.gradients[k] for k in seeds],
+                                 self.config.learning_rate, adam_states)
 
     @property
     def size(self) -> int:
@@ -107,8 +102,7 @@ class Learner:
     # --- the update
     def set_learning_rate(self, learning_rate: float) -> None:
         """Adam's step size for every seed (the schedule's, not the rate a resumed optimizer saved)."""
-        for group in self.optimizer.param_groups:
-            group["lr"] = learning_rate
+        self.optimizer.learning_rate = learning_rate
 
     def update(self, batches: Sequence[ReplayBatch], trim: bool = True) -> torch.Tensor:
         """One Adam step of every seed on its batch (`batches[k]` for seed k, R rows each), its
@@ -135,20 +129,11 @@ class Learner:
     def seed_state(self, k: int) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, Any]]:
         """Seed k's online and target state dicts and its Adam state dict, as a plain
         torch.optim.Adam over its network's parameters would give them."""
-        plain = torch.optim.Adam(self.online[k].parameters(), lr=self.optimizer.param_groups[0]["lr"])
-        state = self.optimizer.state.get(self.optimizer.param_groups[0]["params"][k])
-        optimizer = plain.state_dict()
-        if state:
-            optimizer["state"] = {
-                index: {
-                    "step": state["step"].detach().cpu().clone(),
-                    "exp_avg": part.detach().cpu().clone(),
-                    "exp_avg_sq": squares.detach().cpu().clone(),
-                }
-                for index, (part, squares) in enumerate(zip(
-                    self._split(state["exp_avg"]), self._split(state["exp_avg_sq"])
-                ))
-            }
+        state = self.optimizer.states[k]
+        step, moments = (None, []) if state is None else (
+            state["step"], list(zip(self._split(state["exp_avg"]), self._split(state["exp_avg_sq"])))
+        )
+        optimizer = one_seed_state_dict(len(list(self.template.parameters())), self.optimizer.learning_rate, step, moments)
         return self.online[k].state_dict(), self.target[k].state_dict(), optimizer
 
     def load_seed_state(
@@ -159,9 +144,8 @@ class Learner:
         self.online[k].load_state_dict(online)
         self.target[k].load_state_dict(target)
         saved = optimizer["state"]
-        row = self.optimizer.param_groups[0]["params"][k]
         if not saved:
-            self.optimizer.state.pop(row, None)
+            self.optimizer.states[k] = None
             return
         count = len(list(self.template.parameters()))
         if sorted(saved) != list(range(count)):
@@ -169,7 +153,7 @@ class Learner:
         steps = {float(entry["step"]) for entry in saved.values()}
         if len(steps) != 1:
             raise ValueError(f"the optimizer state's parameters have taken different step counts {sorted(steps)}")
-        self.optimizer.state[row] = {
+        self.optimizer.states[k] = {
             "step": torch.tensor(steps.pop(), dtype=torch.float32, device=self.device),
             "exp_avg": self._join([saved[index]["exp_avg"] for index in range(count)]),
             "exp_avg_sq": self._join([saved[index]["exp_avg_sq"] for index in range(count)]),
@@ -187,8 +171,7 @@ class Learner:
         """Go on with the seeds at `indices` alone (the others stopped): their weights, targets,
         Adam states and generators as they are. `online` and `target` are new networks afterwards."""
         index = torch.tensor(list(indices), device=self.device, dtype=torch.int64)
-        rows = self.optimizer.param_groups[0]["params"]
-        states = [self.optimizer.state.get(rows[k]) for k in indices]
+        states = [self.optimizer.states[k] for k in indices]
         self.seeds = [self.seeds[k] for k in indices]
         self.generators = [self.generators[k] for k in indices]
         self._build(self.weights.index_select(0, index), self.target_weights.index_select(0, index), states)

@@ -5,6 +5,7 @@ fine-tunes, several team sizes, the collision value, a falling step size and the
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -67,9 +68,8 @@ def test_a_shaped_run_trains_and_records_its_setting(tmp_path):
     assert read_counters(run).updates > 0
 
 
-def test_fine_tune_with_shaping_refills_rather_than_learn_from_unshaped_returns(tmp_path):
-    run, out = tmp_path / "run", tmp_path / "shaped"
-    train(tiny(), run, show_progress=False)
+def test_fine_tune_with_shaping_refills_rather_than_learn_from_unshaped_returns(curriculum_run, tmp_path):
+    run, out = curriculum_run, tmp_path / "shaped"
     held = read_counters(run).replay_transitions
     assert fine_tune(run, out, tiny(potential_shaping=1.0, total_steps=560, buffer_size=1000), tmp_path) == 0
     note = next(r["note"] for r in records(out) if r["kind"] == "resume")
@@ -128,12 +128,20 @@ def records(run) -> list[dict]:
     return [json.loads(line) for line in (run / METRICS_FILE).read_text().splitlines()]
 
 
-def test_resume_continues_with_the_saved_replay_buffer(tmp_path):
-    run = tmp_path / "run"
-    train(tiny(), run, show_progress=False)
+@pytest.fixture(scope="module")
+def curriculum_run(tmp_path_factory) -> Path:
+    """`tiny` with a snapshot every 160 steps, trained to its end: what the resume and fine-tune
+    tests start from (they read it, and write elsewhere)."""
+    run = tmp_path_factory.mktemp("learner") / "run"
+    train(tiny(snapshot_frequency=160), run, show_progress=False)
+    return run
+
+
+def test_resume_continues_with_the_saved_replay_buffer(curriculum_run, tmp_path):
+    run = shutil.copytree(curriculum_run, tmp_path / "run")
     saved = np.load(run / REPLAY_FILE)["rewards"].size
     assert saved > 0
-    train(tiny(total_steps=640), run, resume=run, show_progress=False)
+    train(tiny(snapshot_frequency=160, total_steps=640), run, resume=run, show_progress=False)
     note = next(r["note"] for r in records(run) if r["kind"] == "resume")
     assert f"with its replay buffer ({saved:,} transitions)" in note
 
@@ -149,9 +157,8 @@ def test_snapshot_score_ranks_success_then_collisions_and_time():
     assert snapshot_score([good], config) > snapshot_score([slow], config) > snapshot_score([failing], config)
 
 
-def test_best_snapshot_is_kept_and_logged(tmp_path):
-    run = tmp_path / "run"
-    counters = train(tiny(snapshot_frequency=160), run, show_progress=False)
+def test_best_snapshot_is_kept_and_logged(curriculum_run):
+    run, counters = curriculum_run, read_counters(curriculum_run)
     snapshots = [r for r in records(run) if r["kind"] == "snapshot"]
     assert [r["env_step"] for r in snapshots] == [160, 320, 480]
     assert [e["scenario"] for e in snapshots[0]["evaluations"]] == ["curriculum-2", "small-11"]  # stage 2 from 137
@@ -196,10 +203,9 @@ def fine_tune(run, out, config: Config, tmp_path) -> int:
     return main(["train", "--resume", str(run), "--config", str(config_file), "--out", str(out), "--quiet", "--threads", "1"])
 
 
-def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(tmp_path):
-    run, out = tmp_path / "run", tmp_path / "medium"
-    before = train(tiny(snapshot_frequency=160), run, show_progress=False)
-    assert before.best_score is not None
+def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(curriculum_run, tmp_path):
+    run, out = curriculum_run, tmp_path / "medium"
+    assert read_counters(run).best_score is not None
     medium = tiny(curriculum=False, scenario="medium-48", num_envs=2, total_steps=640, snapshot_frequency=80,
                   buffer_size=1000)  # the refill fills it
     assert fine_tune(run, out, medium, tmp_path) == 0
@@ -215,9 +221,8 @@ def test_fine_tune_on_a_larger_team_refills_and_starts_its_own_best(tmp_path):
     assert [e["scenario"] for e in snapshots[-1]["evaluations"]] == ["medium-48", "small-11"]
 
 
-def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(tmp_path):
-    run, out = tmp_path / "run", tmp_path / "published"
-    train(tiny(), run, show_progress=False)
+def test_fine_tune_on_another_reward_refills_rather_than_learn_from_old_rewards(curriculum_run, tmp_path):
+    run, out = curriculum_run, tmp_path / "published"
     assert (run / REPLAY_FILE).is_file()
     assert fine_tune(run, out, tiny(reward="published", success_ends_transitions=False, total_steps=560,
                                         buffer_size=1000), tmp_path) == 0

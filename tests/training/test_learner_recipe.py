@@ -189,8 +189,8 @@ def test_an_actor_never_refreshed_acts_as_the_first_network_does(tmp_path):
     }
     actions = {}
     for name, config in runs.items():
-        config = config.replace(total_steps=320, num_envs=4, learning_starts=64, batch_size=32, snapshot_frequency=0,
-                                log_frequency=160, checkpoint_frequency=320, buffer_size=5_000)
+        config = config.replace(total_steps=160, num_envs=4, learning_starts=32, batch_size=32, snapshot_frequency=0,
+                                log_frequency=160, checkpoint_frequency=160, buffer_size=5_000)
         train(config, tmp_path / name, show_progress=False)
         buffer = ReplayBuffer(5_000, Scenario.preset("curriculum-1").evader_slots)
         buffer.load(tmp_path / name / REPLAY_FILE)
