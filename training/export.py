@@ -224,23 +224,23 @@ def export_onnx(
     return path
 
 
-def reexport_onnx(source: str | Path, path: str | Path) -> Path:
+def reexport_onnx(source: str | Path, path: str | Path, metadata: dict[str, str] | None = None) -> Path:
     """Write the policy at `source` again at `path`, with this exporter's graph, and return the path.
 
     The network is rebuilt from the weights in the source graph (training.onnx_weights) and
     checked to compute what the source does (`check_parity` against the source file) before
     `export_onnx` writes and checks the new file; the source's metadata is kept, with
-    META_REEXPORTED_FROM added.
+    META_REEXPORTED_FROM and the caller's `metadata` (str -> str) added over it.
 
     Raises:
         WeightsNotFound: the source graph lacks a parameter of its network.
         ParityError: the rebuilt network differs from the source file or from the new one.
     """
     source = Path(source)
-    model, metadata = network_from_onnx(source)
+    model, kept = network_from_onnx(source)
     check_parity(model, source)
-    metadata[META_REEXPORTED_FROM] = hashlib.sha256(source.read_bytes()).hexdigest()
-    return export_onnx(model, path, metadata)
+    kept[META_REEXPORTED_FROM] = hashlib.sha256(source.read_bytes()).hexdigest()
+    return export_onnx(model, path, {**kept, **(metadata or {})})
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:

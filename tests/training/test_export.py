@@ -190,3 +190,15 @@ def test_export_command_reexports_an_onnx_policy_and_refuses_a_missing_one(expor
     assert read_metadata(tmp_path / "again.onnx")[export.META_REEXPORTED_FROM]
     assert main(["export", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "out.onnx")]) == 2
     assert "no policy file at" in capsys.readouterr().err
+
+
+def test_export_names_the_method_and_seed_that_a_report_groups_policies_by(exported, tmp_path, capsys):
+    from terl_rt.paper.seed_comparison import policy_identity
+
+    _, source = exported("terl")
+    named = tmp_path / "terl-default.onnx"
+    assert main(["export", str(source), "--method", "terl-default", "--seed", "7", "-o", str(named)]) == 0
+    assert "terl.method terl-default, terl.seed 7;" in capsys.readouterr().out
+    assert policy_identity(read_metadata(named)) == ("terl-default", 7)
+    assert main(["export", str(source), "--method", "TERL default", "-o", str(tmp_path / "bad.onnx")]) == 2
+    assert "'TERL default' is no method name" in capsys.readouterr().err and not (tmp_path / "bad.onnx").exists()
