@@ -75,7 +75,8 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
 
     `curves`: label -> the run's curve points (`training.snapshot_curves.with_interval`: step,
     scenario, success rate with its exact interval, collision ratio). Top row: success rate, its
-    95 % interval as error bars; bottom row: collision ratio. x axis: environment steps.
+    95 % interval as error bars; bottom row: collision ratio. x axis: environment steps (the
+    runs' points at one step drawn a little apart, left to right in `curves`' order).
     """
     plt = _pyplot()
     from matplotlib.ticker import EngFormatter
@@ -84,11 +85,14 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
     if not presets:
         raise CurvesError("no snapshot evaluation to plot")
     fig, axes = plt.subplots(2, len(presets), figsize=(4 * len(presets), 6), sharex=True, squeeze=False)
+    # Runs' points at one step (seeds evaluated together) are drawn `apart`, their bars side by side.
+    every_step = [point["env_step"] for points in curves.values() for point in points]
+    apart = 0.006 * ((max(every_step) - min(every_step)) or max(every_step))
     for column, preset in enumerate(presets):
         success, collisions = axes[0][column], axes[1][column]
         for index, (label, points) in enumerate(curves.items()):
             shown = [point for point in points if point["scenario"] == preset]
-            steps = [point["env_step"] for point in shown]
+            steps = [point["env_step"] + apart * (index - (len(curves) - 1) / 2) for point in shown]
             rates = [point["success_rate"] for point in shown]
             below = [rate - point["success_low"] for rate, point in zip(rates, shown)]
             above = [point["success_high"] - rate for rate, point in zip(rates, shown)]
