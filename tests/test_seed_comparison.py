@@ -261,6 +261,26 @@ def test_report_of_a_grids_folder_compares_over_seeds(seeded, tmp_path):
     assert len(marl["terl-rt"]["cc-28"]["iqn"]["2"]["step_1"]["success"]) == 2
 
 
+def test_terl_names_the_method_that_stands_for_the_papers_terl(seeded, tmp_path):
+    pytest.importorskip("matplotlib")
+    authors = write_test_policy(tmp_path / "terl-authors-seed-1.onnx", seed=5, model="terl",
+                                metadata={"terl.method": "terl-authors", "terl.seed": "1"})
+    assert policy_identity(OnnxPolicy(authors).metadata, terl="terl-authors") == ("TERL", 1)
+    assert policy_identity(OnnxPolicy(seeded / "terl-seed-1.onnx").metadata, terl="terl-authors") == ("terl", 1)
+    result = invoke("report", "--policy", authors, "--policy", seeded / "terl-seed-1.onnx", "--terl", "terl-authors",
+                    "--scenario", "small-published-7", "--episodes", "1", "--max-steps", "2", "--out", tmp_path / "docs")
+    assert result.exit_code == 0, result.output
+    assert f"[1/2] TERL seed 1: {authors}" in result.stderr and "[2/2] terl seed 1: " in result.stderr
+    text = (tmp_path / "docs" / "comparison.md").read_text()
+    assert "- seeds: TERL 1 and terl 1" in text and "- TERL: method terl-authors (`--terl`), the one the claims are judged on" in text
+    assert "--terl terl-authors" in text
+    marl = json.loads((tmp_path / "docs" / MARL_EVAL_NAME).read_text())
+    assert sorted(marl["terl-rt"]["small-published-7"]) == ["terl", "terl-authors"]  # by recipe stem, not by role
+    missing = invoke("report", "--policy", seeded, "--terl", "terl-authors", *TINY, "--out", tmp_path / "none")
+    assert missing.exit_code == 2
+    assert missing.stderr == "Error: --terl terl-authors: no policy is of that method (their methods: iqn, terl)\n"
+
+
 def test_two_files_of_one_method_and_seed_are_one_error_line(seeded, tmp_path):
     twin = write_test_policy(tmp_path / "twin.onnx", seed=9, model="terl", metadata={"terl.method": "terl", "terl.seed": "1"})
     result = invoke("report", "--policy", seeded / "terl-seed-1.onnx", "--policy", twin, *TINY, "--out", tmp_path / "docs")

@@ -19,8 +19,8 @@ from terl_rt.cli.options import (
     max_steps_option,
     open_policy,
     policies_option,
-    policy_json,
     policy_files,
+    policy_json,
     policy_threads,
     report_episodes_option,
     resolve_scenarios,
@@ -32,6 +32,7 @@ from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.cli.report_comparison import ComparisonRun, compare
 from terl_rt.files import atomic_outputs
 from terl_rt.paper import seed_comparison
+from terl_rt.paper.comparison import DEFAULT_TERL
 from terl_rt.paper.figures import MatplotlibMissing, require_matplotlib
 from terl_rt.paper.report import (
     FIGURE_NAME,
@@ -60,6 +61,7 @@ def command_line(
     address: str | None = None,
     beyond: bool = False,
     beyond_episodes: int | None = None,
+    terl: str = DEFAULT_TERL,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -69,6 +71,8 @@ def command_line(
         words += ["--scenario", name]
     if beyond:
         words.append("--beyond")
+    if terl != DEFAULT_TERL:
+        words += ["--terl", terl]
     words += ["--episodes", str(episodes)]
     if beyond_episodes is not None:
         words += ["--beyond-episodes", str(beyond_episodes)]
@@ -104,6 +108,13 @@ def command_line(
     "seeds, even of one policy. A 400-pursuer step costs the simulator about 6 large-80 steps and the policy 5 "
     "times the rows (docs/benchmarks.md).",
 )
+@click.option(
+    "--terl", default=DEFAULT_TERL, show_default=True, metavar="METHOD",
+    help="The method (a recipe stem, as terl.method names it) that stands for the paper's TERL: the claims are "
+    "judged on its seeds and P(TERL better) is its. Another than terl makes the run a comparison over seeds, "
+    "in which method terl keeps its own name: --terl terl-authors sets the authors' protocol as TERL beside "
+    "the 1 M protocol's seeds (docs/training.md).",
+)
 @report_episodes_option
 @click.option(
     "--beyond-episodes", type=click.IntRange(min=1, max=10**6), default=None, metavar="N",
@@ -130,7 +141,7 @@ def command_line(
 @json_option
 @force_option
 def report_command(
-    policy_paths, scenario_names, beyond, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
+    policy_paths, scenario_names, beyond, terl, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
     out, keep_progress, as_json, force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
@@ -149,7 +160,7 @@ def report_command(
 
     Several training seeds of a method (files with terl.method and terl.seed metadata, as
     a grid exports them to exported/comparison/<method>-seed-<S>.onnx; or two files of
-    one method whose terl.training_config seeds differ), or --beyond, make it a comparison
+    one method whose terl.training_config seeds differ), --beyond or --terl make it a comparison
     over seeds: per method and scale group the mean and interquartile mean over seeds with
     95 % stratified bootstrap intervals and the probability that TERL does better; the
     paper's claims judged on them (reproduces, does not reproduce, or cannot tell where the
@@ -170,6 +181,7 @@ def report_command(
       terl-rt report --policy exported/comparison --beyond --scenario small-15 --episodes 10 --out /tmp/beyond
       terl-rt report --policy exported/comparison --beyond --episodes 50 --beyond-episodes 10 --workers 2 --out docs --force
       terl-rt report --policy exported/comparison --episodes 50 --workers 2 --out docs --force --keep-progress
+      terl-rt report --policy exported/comparison --terl terl-authors --episodes 50 --workers 2 --out authors
     """
     try:
         require_matplotlib()  # before the evaluation, which may take hours
@@ -181,12 +193,12 @@ def report_command(
     files = policy_files(policy_paths)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address, beyond,
-        beyond_episodes,
+        beyond_episodes, terl,
     )
-    if len(files) > 1 or beyond:
+    if len(files) > 1 or beyond or terl != DEFAULT_TERL:
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
         run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
-                            address, threads, out_dir, keep_progress, as_json, force, command)
+                            address, threads, out_dir, keep_progress, as_json, force, command, terl)
         compare(policies, beyond, run)
         return
     if keep_progress:

@@ -16,6 +16,8 @@ from terl_rt.cli.outputs import check_output
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.files import atomic_outputs
 from terl_rt.paper import seed_comparison
+from terl_rt.paper.comparison import DEFAULT_TERL
+from terl_rt.paper.numbers import TERL
 from terl_rt.paper.report import REPORT_SUITE
 from terl_rt.paper.runner import METHOD_FILES, SEED_FILES, ComparisonRunner, over_seeds, seeds_in_paper_order
 from terl_rt.policy.onnx_policy import OnnxPolicy
@@ -43,6 +45,8 @@ class ComparisonRun:
     force: bool
     command: str
     """the command line, as the written files quote it."""
+    terl: str = DEFAULT_TERL
+    """the recipe stem of the method that stands for the paper's TERL (--terl)."""
 
     @contextmanager
     def runner(self) -> Iterator[ComparisonRunner]:
@@ -59,17 +63,21 @@ class ComparisonRun:
 def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> None:
     """`terl-rt report` with several policies (or --beyond): over training seeds where
     `over_seeds` says so or with `beyond`, else one policy a method; evaluate each in the
-    paper's order of methods (then by seed), print the claims' verdicts and write the files."""
-    seeds = beyond or over_seeds(policies)
+    paper's order of methods (then by seed), print the claims' verdicts and write the files.
+    A method other than terl standing for TERL (`run.terl`) makes it over seeds too."""
+    seeds = beyond or run.terl != DEFAULT_TERL or over_seeds(policies)
     files = SEED_FILES if seeds else METHOD_FILES
     for name in files.values():
         check_output(run.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], run.force)
     scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
     if seeds:
         try:
-            named = seeds_in_paper_order(policies)
+            named = seeds_in_paper_order(policies, run.terl)
         except ValueError as error:  # ComparisonError, or a terl.seed that is no integer
             raise BadInput(f"--policy: {error}") from error
+        if run.terl != DEFAULT_TERL and TERL not in {method for method, _, _ in named}:
+            stems = sorted({seed_comparison.method_stem(policy.metadata) for policy in policies})
+            raise BadInput(f"--terl {run.terl}: no policy is of that method (their methods: {', '.join(stems)})")
         worlds = seed_comparison.beyond_scenarios() if beyond else []
         with run.runner() as runner:
             finished = runner.compare_seeds(named, scenarios, run.episodes, worlds, run.beyond_episodes, run.command)

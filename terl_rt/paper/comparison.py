@@ -80,9 +80,19 @@ class MethodRun:
     """its evaluations, one a scenario."""
 
 
-def method_name(model: str) -> str:
-    """The paper's name of a model (`terl.model` metadata: terl -> TERL, terl-no-re -> w/o RE,
-    ...); a model the paper does not have keeps its own name."""
+DEFAULT_TERL = "terl"
+"""The model (recipe stem) that stands for the paper's TERL unless a report names another."""
+
+
+def method_name(model: str, terl: str = DEFAULT_TERL) -> str:
+    """The paper's name of a model or recipe stem (`terl.model` or `terl.method` metadata:
+    terl -> TERL, terl-no-re -> w/o RE, ...); a model the paper does not have keeps its own
+    name. `terl`: the stem that stands for TERL (`terl-rt report --terl`); where that is
+    another, the stem "terl" keeps its own name."""
+    if model == terl:
+        return TERL
+    if model == DEFAULT_TERL:
+        return model
     return PAPER_METHODS.get(model, model)
 
 

@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.evaluation.stats import travel_times
 from terl_rt.paper.numbers import PAPER_METHODS
+from terl_rt.paper.seed_comparison import method_stem
 from terl_rt.policy.contract import META_TRAINING_STEPS
 
 ENVIRONMENT = "terl-rt"
@@ -33,10 +34,11 @@ Entry = tuple[str, str, Mapping, Sequence[ScenarioResult]]
 """(method, run name, policy info, evaluations): one trained policy's results."""
 
 
-def algorithm_name(method: str) -> str:
-    """A method's name in the export: its recipe stem (TERL -> terl, w/o RE -> terl-no-re),
+def algorithm_name(method: str, metadata: Mapping[str, str]) -> str:
+    """A method's name in the export: the recipe stem its policy's metadata names
+    (`method_stem`), else the stem of the paper's name (TERL -> terl, w/o RE -> terl-no-re),
     or the name itself for a method the paper does not have."""
-    return _STEMS.get(method, method)
+    return method_stem(metadata) or _STEMS.get(method, method)
 
 
 def episode_lists(result: ScenarioResult, with_return: bool) -> dict[str, list[float]]:
@@ -58,11 +60,12 @@ def marl_eval_dict(entries: Sequence[Entry]) -> dict:
     with_return = all(m.team_return is not None for _, _, _, results in entries for r in results for m in r.per_episode)
     tasks: dict[str, dict] = {}
     for method, run, policy, results in entries:
-        steps = (policy.get("metadata") or {}).get(META_TRAINING_STEPS, "0")
+        metadata = policy.get("metadata") or {}
+        steps = metadata.get(META_TRAINING_STEPS, "0")
         step_count = int(steps) if str(steps).isdigit() else 0
         for result in results:
             lists = episode_lists(result, with_return)
-            tasks.setdefault(result.name, {}).setdefault(algorithm_name(method), {})[run] = {
+            tasks.setdefault(result.name, {}).setdefault(algorithm_name(method, metadata), {})[run] = {
                 STEP: {"step_count": step_count, **lists},
                 ABSOLUTE: {name: list(values) for name, values in lists.items()},
             }

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.paper import comparison, seed_comparison_files
-from terl_rt.paper.comparison import MethodRun, method_name, paper_order
+from terl_rt.paper.comparison import DEFAULT_TERL, MethodRun, method_name, paper_order
 from terl_rt.paper.saved_results import SavedResults
 from terl_rt.paper.seed_comparison import SeedRun, check_seeds, policy_identity, seed_statistics
 from terl_rt.policy.contract import META_METHOD, META_SEED
@@ -47,11 +47,13 @@ def over_seeds(policies: Sequence[OnnxPolicy]) -> bool:
     )
 
 
-def seeds_in_paper_order(policies: Sequence[OnnxPolicy]) -> list[tuple[str, int | None, OnnxPolicy]]:
-    """(method, training seed or None, policy) of each policy, in the paper's order of methods,
-    then by seed. ValueError (a ComparisonError among them) for two policies that cannot be
-    told apart, or a terl.seed that is no integer."""
-    named = [(*policy_identity(policy.metadata), policy) for policy in policies]
+def seeds_in_paper_order(policies: Sequence[OnnxPolicy],
+                         terl: str = DEFAULT_TERL) -> list[tuple[str, int | None, OnnxPolicy]]:
+    """(method, training seed or None, policy) of each policy (`policy_identity`, `terl` the
+    stem that stands for TERL), in the paper's order of methods, then by seed. ValueError (a
+    ComparisonError among them) for two policies that cannot be told apart, or a terl.seed
+    that is no integer."""
+    named = [(*policy_identity(policy.metadata, terl), policy) for policy in policies]
     check_seeds([(method, seed, str(policy.path)) for method, seed, policy in named])
     return sorted(named, key=lambda item: (paper_order(item[0]), -1 if item[1] is None else item[1]))
 

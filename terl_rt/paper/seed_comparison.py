@@ -32,7 +32,7 @@ from terl_rt.evaluation.speed import scaling_scenario
 from terl_rt.evaluation.stats import success_interval, travel_times
 from terl_rt.paper import seed_stats
 from terl_rt.paper.claims import NOT_MEASURED, ClaimCheck, check_claims
-from terl_rt.paper.comparison import ComparisonError, method_name, paper_order
+from terl_rt.paper.comparison import DEFAULT_TERL, ComparisonError, method_name, paper_order
 from terl_rt.paper.numbers import REPORT_GROUPS, TERL, scale_group
 from terl_rt.policy.contract import META_METHOD, META_MODEL, META_SEED, META_TRAINING_CONFIG
 from terl_rt.sim.scenario import Scenario
@@ -66,11 +66,17 @@ class SeedRun:
     """its evaluations, one a scenario, the same scenarios for every run."""
 
 
-def policy_identity(metadata: Mapping[str, str]) -> tuple[str, int | None]:
+def method_stem(metadata: Mapping[str, str]) -> str:
+    """The recipe stem of a policy's method: `terl.method`, else `terl.model` ("" if neither)."""
+    return metadata.get(META_METHOD) or metadata.get(META_MODEL, "")
+
+
+def policy_identity(metadata: Mapping[str, str], terl: str = DEFAULT_TERL) -> tuple[str, int | None]:
     """(the paper's method name, training seed or None) of a policy's metadata: the method
-    from `terl.method`, else `terl.model`; the seed from `terl.seed`, else the "seed" of
-    `terl.training_config`'s JSON. ValueError when terl.seed is not an integer."""
-    method = method_name(metadata.get(META_METHOD) or metadata.get(META_MODEL, ""))
+    `method_name` gives its `method_stem` (`terl`: the stem that stands for TERL); the seed
+    from `terl.seed`, else the "seed" of `terl.training_config`'s JSON. ValueError when
+    terl.seed is not an integer."""
+    method = method_name(method_stem(metadata), terl)
     if META_SEED in metadata:
         try:
             return method, int(metadata[META_SEED])

@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 from terl_rt.evaluation.stats import format_interval
 from terl_rt.paper import seed_stats
+from terl_rt.paper.comparison import DEFAULT_TERL
 from terl_rt.paper.figures import require_matplotlib
 from terl_rt.paper.marl_eval import marl_eval_dict
 from terl_rt.paper.numbers import ABLATION_TABLE, ABLATIONS, CC_TABLE, REPORT_GROUPS, TERL, paper_group
@@ -31,6 +32,7 @@ from terl_rt.paper.seed_comparison import (
     SeedStatistics,
     check_seeds,
     method_runs,
+    method_stem,
     seed_statistics,
 )
 from terl_rt.paper.seed_figure import plot_seed_comparison
@@ -82,6 +84,15 @@ def _paper_row(method: str, group: str) -> str:
     return f"{paper.success_rate:.2f} | {paper.travel_time_s:.2f} | {paper.collision_ratio:.2f}"
 
 
+def terl_stand_in(terl_runs: Sequence[SeedRun]) -> list[str]:
+    """The line that says which method stands for TERL (`terl-rt report --terl`), none where
+    it is the paper's own (terl) or TERL was not evaluated."""
+    stems = sorted({method_stem(run.policy.get("metadata") or {}) for run in terl_runs} - {DEFAULT_TERL})
+    if not stems:
+        return []
+    return [f"- TERL: method {join_words(stems)} (`--terl`), the one the claims are judged on"]
+
+
 def render_seed_markdown(
     runs: Sequence[SeedRun], stats: SeedStatistics, command: str, date: datetime, figure_name: str = FIGURE_NAME,
 ) -> str:
@@ -96,6 +107,7 @@ def render_seed_markdown(
         f"- command: `{command}`",
         f"- date: {date.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- seeds: {seeds_text}",
+        *terl_stand_in(by_method.get(TERL, ())),
         f"- episodes a scenario and seed: {run_settings(results)}",
         "",
         "| method | seed | model | policy | sha256 | training steps |",
