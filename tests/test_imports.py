@@ -45,3 +45,17 @@ def test_an_evaluation_on_the_command_line_loads_no_scipy():
     )
     loaded = subprocess.run([sys.executable, "-c", evaluation], capture_output=True, text=True, check=True).stdout
     assert loaded.split()[-1] == "False"
+
+
+def test_training_help_answers_without_torch():
+    """`python -m training --help` and every subcommand's: what trains, exports or loads a
+    network is imported inside the command that does it (training/cli/__init__.py)."""
+    every_help = (
+        "import contextlib, io\n"
+        "from training.cli.main import cli, main\n"
+        "for name in ['', *cli.commands]:\n"
+        "    with contextlib.redirect_stdout(io.StringIO()) as text:\n"
+        "        assert main([name, '--help'] if name else ['--help']) == 0\n"
+        "    assert 'Usage: python -m training' in text.getvalue()\n"
+    )
+    assert "torch" not in heavy_modules_after(every_help)

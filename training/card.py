@@ -12,12 +12,13 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-
-from training.checkpoint import load_network
 from training.config import Config
 from training.curves import read_metrics
+
+if TYPE_CHECKING:
+    import torch
 
 PAPER_NAMES = {
     "terl": "TERL", "iqn": "IQN", "dqn": "DQN", "mean": "MEAN",
@@ -136,6 +137,8 @@ def model_card(
         comparison: a comparison.json of `terl-rt report` holding this model (its evaluation
             section); None: the card points to docs/comparison.md.
     """
+    from training.checkpoint import load_network  # here, not above: `python -m training --help` does not import torch
+
     run = Path(run)
     best = run / "best"
     model, config, best_counters = load_network(best if best.is_dir() else run)

@@ -34,12 +34,18 @@ class ConfigError(ValueError):
     """A configuration that is malformed; the message names the field (or file)."""
 
 
+MODELS: tuple[str, ...] = ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts")
+"""The network bodies `NetworkConfig.model` may name, each a class of training.networks'
+registry (`network_classes`, which imports torch): named here so that a command line can
+offer them without importing torch."""
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """The network: which body and its sizes (policy.md section 1)."""
 
     model: str = "terl"
-    """network registry name: terl, iqn, dqn, mean, terl-no-re or terl-no-ts."""
+    """network registry name, one of MODELS."""
     hidden: int = 64
     """H: token and feature width (the paper's 256; 64 trains about 10x faster on a CPU core)."""
     layers: int = 2
@@ -401,7 +407,7 @@ def _validate(config: Config) -> None:
     from training.networks import network_classes
 
     network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
-    models = sorted(network_classes())
+    models = sorted(MODELS)
     if network.model not in models:
         raise ConfigError(f"model: unknown network '{network.model}'; expected one of {models}")
     if data.reward not in REWARD_VARIANTS:

@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch import nn
 
+from training.config import MODELS
 from training.export import example_inputs
 from training.networks import build_network, fixed_fractions, network_classes
 from training.networks.encoders import (
@@ -41,6 +42,10 @@ def run(model: nn.Module, inputs: dict[str, torch.Tensor]) -> tuple[torch.Tensor
     """(q_values [B, 9], target_weights [B, E] or None) without gradients."""
     with torch.no_grad():
         return model.policy_outputs(*(inputs[name] for name in NAMES))
+
+
+def test_the_registry_builds_every_model_a_config_may_name():
+    assert sorted(MODELS) == ALL_MODELS  # config.MODELS: the names without importing torch
 
 
 @pytest.mark.parametrize("name", ALL_MODELS)

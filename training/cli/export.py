@@ -8,10 +8,7 @@ from pathlib import Path
 import click
 
 from terl_rt.policy.contract import META_METHOD, META_SEED
-from training.checkpoint import export_checkpoint
 from training.cli.options import output_option
-from training.export import read_metadata, reexport_onnx
-from training.onnx_weights import WeightsNotFound
 
 METHOD_NAME = re.compile(r"[a-z0-9][a-z0-9._-]*")
 """What --method takes: a recipe stem's form (terl, terl-authors, terl-no-re)."""
@@ -38,6 +35,10 @@ def export_command(checkpoint: Path, output: Path, method: str | None, seed: int
       # the shipped default beside the 1 M seeds (method terl, seeds 1-3) in one report:
       python -m training export exported/terl.onnx --method terl-default -o runs/three/terl-default.onnx
     """
+    from training.checkpoint import export_checkpoint
+    from training.export import read_metadata, reexport_onnx
+    from training.onnx_weights import WeightsNotFound
+
     if method is not None and not METHOD_NAME.fullmatch(method):
         raise click.BadParameter(f"{method!r} is no method name (lower-case letters, digits, '.', '_' and '-', "
                                  "as a recipe's file name)", param_hint="--method")

@@ -5,10 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import torch
 
-from training.config import Config, ConfigError
-from training.networks import network_classes
+from training.config import MODELS, Config, ConfigError, DataConfig, RunConfig, ScheduleConfig
 
 OVERRIDES = ("total_steps", "curriculum_steps", "learning_rate", "learning_starts", "num_envs", "threads", "seed",
              "device", "hidden", "layers", "heads")
@@ -17,15 +15,15 @@ OVERRIDES = ("total_steps", "curriculum_steps", "learning_rate", "learning_start
 
 def config_options(command):
     """Options of train and bench: where the config comes from and what to override."""
-    defaults = Config()
+    schedule, data, run = ScheduleConfig(), DataConfig(), RunConfig()  # the defaults, unchecked: no torch for --help
     options = [
-        click.option("--model", type=click.Choice(sorted(network_classes())),
+        click.option("--model", type=click.Choice(sorted(MODELS)),
                      help="Network to train with the shipped settings (the comparison's recipe: only the body "
                           "changes); --config gives a file instead."),
         click.option("--config", "config_file", type=click.Path(path_type=Path), metavar="FILE",
                      help="JSON config file, by part or flat (unknown keys are errors; missing keys take the defaults)."),
         click.option("--total-steps", type=int, metavar="K",
-                     help=f"Environment steps in all (default {defaults.schedule.total_steps:,})."),
+                     help=f"Environment steps in all (default {schedule.total_steps:,})."),
         click.option("--curriculum-steps", type=int, metavar="K",
                      help="Environment steps the curriculum is split over (default: --total-steps); to extend a "
                           "finished run, resume with a larger --total-steps and this set to its old length: the "
@@ -33,14 +31,14 @@ def config_options(command):
         click.option("--learning-rate", type=float, metavar="LR",
                      help="Adam learning rate; with --resume it replaces the checkpoint's."),
         click.option("--learning-starts", type=int, metavar="K",
-                     help=f"Environment steps before the first update (default {defaults.data.learning_starts}); with "
+                     help=f"Environment steps before the first update (default {data.learning_starts}); with "
                           "--resume and no saved replay buffer, the fewest steps that refill it first (it refills "
                           "to the transitions it held)."),
         click.option("--num-envs", type=int, metavar="B",
-                     help=f"Environments stepped together (default {defaults.schedule.num_envs})."),
-        click.option("--threads", type=int, metavar="T", help=f"torch intra-op threads (default {defaults.run.threads})."),
+                     help=f"Environments stepped together (default {schedule.num_envs})."),
+        click.option("--threads", type=int, metavar="T", help=f"torch intra-op threads (default {run.threads})."),
         click.option("--seed", type=int, metavar="S",
-                     help=f"Random seed (default {defaults.run.seed}); a resume continues the checkpoint's CPU "
+                     help=f"Random seed (default {run.seed}); a resume continues the checkpoint's CPU "
                           "generators instead (the CUDA one of --device cuda takes S anew)."),
         click.option("--device", metavar="DEV",
                      help="torch device of the networks and updates: cpu (default) or cuda; rollouts stay on the CPU."),
@@ -72,6 +70,8 @@ def resolve_config(options: dict, default_model: str | None = None) -> Config:
 
 def set_threads(count: int) -> None:
     """torch's intra-op threads (the training functions leave them to the caller)."""
+    import torch  # here, not above: a subcommand's --help does not import torch
+
     torch.set_num_threads(count)
 
 

@@ -9,7 +9,6 @@ import click
 
 from training.cli.options import seed_list, set_threads
 from training.config import ConfigError
-from training.recipe import load_recipe, run_recipe
 
 
 @click.command("run")
@@ -44,6 +43,7 @@ def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, 
       python -m training run recipes/comparison/iqn.toml --out runs/iqn-seed-2 --seed 2
       python -m training run recipes/terl-paper.toml --out runs/paper --seeds 1-3 --segments 1
     """
+    from training.recipe import load_recipe, run_recipe
     from training.train import train_seeds
 
     if seed is not None and seeds is not None:

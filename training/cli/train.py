@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 
-from training.checkpoint import STATE_FILE, read_config
 from training.cli.options import apply_overrides, config_options, resolve_config, set_threads
 from training.config import NETWORK_FIELDS, ConfigError, changed_fields
 
@@ -30,6 +29,7 @@ def train_command(out: Path | None, resume: Path | None, quiet: bool, **options)
                and counters under FILE's settings, e.g. a larger team as the scenario)
     A shipped policy is made by its recipe instead: `python -m training run`.
     """
+    from training.checkpoint import STATE_FILE, read_config
     from training.train import train
 
     if resume is not None:
