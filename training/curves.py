@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -70,13 +71,15 @@ def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path
     return save_figure(fig, out_path, title)
 
 
-def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "") -> Path:
+def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "",
+                         stages: list[dict[str, Any]] = ()) -> Path:
     """Write a PNG of learning curves of kept snapshots, a column a preset and a colour a run.
 
     `curves`: label -> the run's curve points (`training.snapshot_curves.with_interval`: step,
     scenario, success rate with its exact interval, collision ratio). Top row: success rate, its
     95 % interval as error bars; bottom row: collision ratio. x axis: environment steps (the
     runs' points at one step drawn a little apart, left to right in `curves`' order).
+    `stages`: the runs' curriculum stage starts (metrics.jsonl "stage" records), dashed lines.
     """
     plt = _pyplot()
     from matplotlib.ticker import EngFormatter
@@ -108,10 +111,29 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
         for axis in (success, collisions):
             axis.set_ylim(-0.05, 1.05)
             axis.grid(alpha=0.3)
+        mark_stages((success, collisions), stages)
     axes[0][0].set_ylabel("success (exact 95 % interval)")
     axes[1][0].set_ylabel("collision ratio")
     axes[0][0].legend(loc="upper left", fontsize=8)
     return save_figure(fig, out_path, title)
+
+
+def stage_starts(metrics_paths: list[Path]) -> list[dict[str, Any]]:
+    """The curriculum stage starts ("stage" records: env_step, stage) in the runs' metrics.jsonl,
+    each (step, stage) once, in step order: seeds of one schedule share them."""
+    starts = {(record["env_step"], record["stage"])
+              for path in metrics_paths for record in read_metrics(path) if record.get("kind") == "stage"}
+    return [{"env_step": step, "stage": stage} for step, stage in sorted(starts)]
+
+
+def mark_stages(axes: Sequence[Any], stages: list[dict[str, Any]]) -> None:
+    """Dashed vertical lines at the stage starts ("stage" records) on `axes` (sharing x), each
+    stage named at the top of the first, whose y axis runs to 1."""
+    for stage in stages:
+        for axis in axes:
+            axis.axvline(stage["env_step"], color="grey", linestyle="--", linewidth=0.8)
+        axes[0].annotate(stage["stage"].replace("curriculum-", "stage "), (stage["env_step"], 1.0),
+                         fontsize=7, rotation=90, va="top", ha="right", color="grey")
 
 
 def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "") -> Path:
@@ -160,13 +182,9 @@ def plot_curves(metrics_path: str | Path, out_path: str | Path, title: str = "")
     bottom.set_xlabel("environment steps")
     for axis in (top, middle, bottom):
         axis.grid(alpha=0.3)
-        for stage in stages:
-            axis.axvline(stage["env_step"], color="grey", linestyle="--", linewidth=0.8)
         for resume in resumes:
             axis.axvline(resume["env_step"], color="grey", linestyle=":", linewidth=0.8)
-    for stage in stages:
-        top.annotate(stage["stage"].replace("curriculum-", "stage "), (stage["env_step"], 1.0),
-                     fontsize=7, rotation=90, va="top", ha="right", color="grey")
+    mark_stages((top, middle, bottom), stages)
     return save_figure(fig, out_path, title)
 
 

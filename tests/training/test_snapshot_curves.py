@@ -82,3 +82,15 @@ def test_a_curve_names_what_it_cannot_read(tmp_path, capsys):
 
     assert main(["curve", str(run), "--scenario", "huge-500"]) == 2
     assert "unknown scenario 'huge-500'" in capsys.readouterr().err
+
+
+def test_the_stage_starts_of_seeds_on_one_schedule_are_drawn_once(tmp_path):
+    from training.curves import stage_starts
+
+    logs = []
+    for seed, stages in ((1, [(200, "curriculum-2"), (100, "curriculum-1")]), (2, [(100, "curriculum-1")])):
+        log = tmp_path / f"seed-{seed}.jsonl"
+        log.write_text("".join(json.dumps({"kind": "stage", "env_step": step, "stage": name}) + "\n" for step, name in stages)
+                       + json.dumps({"kind": "train", "env_step": 300}) + "\n")
+        logs.append(log)
+    assert stage_starts(logs) == [{"env_step": 100, "stage": "curriculum-1"}, {"env_step": 200, "stage": "curriculum-2"}]

@@ -67,15 +67,16 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
     (snapshots/<step>/evaluations.json) and the run's own snapshot evaluations (metrics.jsonl)
     are read back, so a second call evaluates only new snapshots or presets. Prints a table
     (success with its exact 95 % interval, collision ratio; --json for scripts); -o plots a
-    column a preset, a colour a run.
+    column a preset, a colour a run, the curriculum's stage starts dashed.
 
     \b
     Example (the authors' protocol, issue 53):
       python -m training curve runs/authors/terl-authors/seed-{1,2,3}/1-curriculum -o curves.png
     """
     from terl_rt.sim.scenario import Scenario, ScenarioError
-    from training.curves import plot_snapshot_curves
+    from training.curves import plot_snapshot_curves, stage_starts
     from training.snapshot_curves import run_seed, snapshot_curve, with_interval
+    from training.train import METRICS_FILE
 
     for preset in presets:
         try:
@@ -104,4 +105,5 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
                     f"{point['collision_ratio_mean']:.3f} |"
                 )
     if output is not None:
-        click.echo(f"{plot_snapshot_curves(curves, output, title)}: learning curves of {len(runs)} runs", err=True)
+        stages = stage_starts([run / METRICS_FILE for run in runs])
+        click.echo(f"{plot_snapshot_curves(curves, output, title, stages)}: learning curves of {len(runs)} runs", err=True)
