@@ -72,7 +72,7 @@ def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path
 
 
 def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "",
-                         stages: list[dict[str, Any]] = ()) -> Path:
+                         stages: Sequence[dict[str, Any]] = ()) -> Path:
     """Write a PNG of learning curves of kept snapshots, a column a preset and a colour a run.
 
     `curves`: label -> the run's curve points (`training.snapshot_curves.with_interval`: step,
@@ -126,7 +126,7 @@ def stage_starts(metrics_paths: list[Path]) -> list[dict[str, Any]]:
     return [{"env_step": step, "stage": stage} for step, stage in sorted(starts)]
 
 
-def mark_stages(axes: Sequence[Any], stages: list[dict[str, Any]]) -> None:
+def mark_stages(axes: Sequence[Any], stages: Sequence[dict[str, Any]]) -> None:
     """Dashed vertical lines at the stage starts ("stage" records) on `axes` (sharing x), each
     stage named at the top of the first, whose y axis runs to 1."""
     for stage in stages:
