@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from terl_rt.paper.numbers import PAPER_METHODS
 from training.config import Config
 from training.curves import read_metrics
 
@@ -21,10 +22,9 @@ if TYPE_CHECKING:
     import torch
 
 PAPER_NAMES = {
-    "terl": "TERL", "iqn": "IQN", "dqn": "DQN", "mean": "MEAN",
-    "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
+    **PAPER_METHODS, "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
 }
-"""The paper's name of each model (policy.md sections 1 and 4)."""
+"""The paper's name of each model (policy.md sections 1 and 4), the ablations' spelt out."""
 DEFAULT_MACHINE = "one core of the 2-core CPU machine (one torch thread)"
 """Where a run trained, in words, unless a card is told otherwise."""
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from terl_rt.paper.numbers import PAPER_METHODS
 from terl_rt.sim.reward import REWARD_VARIANTS
 from terl_rt.sim.scenario import CURRICULUM_STARTS, PRESETS
 
@@ -34,10 +35,10 @@ class ConfigError(ValueError):
     """A configuration that is malformed; the message names the field (or file)."""
 
 
-MODELS: tuple[str, ...] = ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts")
+MODELS: tuple[str, ...] = tuple(PAPER_METHODS)
 """The network bodies `NetworkConfig.model` may name, each a class of training.networks'
-registry (`network_classes`, which imports torch): named here so that a command line can
-offer them without importing torch."""
+registry (`network_classes`, which imports torch): the paper's methods, as the runtime names
+their models, so that a command line can offer them without importing torch."""
 
 
 @dataclass(frozen=True)
