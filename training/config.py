@@ -92,6 +92,18 @@ class LearnerConfig:
     double_dqn: bool = False
     """double-DQN targets: the online network picks the next action, the target network values
     it (the published trainer takes the target network's own max)."""
+    max_per_fraction: bool = False
+    """IQN targets: false takes the target network's action of the greatest mean over the N'
+    fractions, for every fraction; true the greatest value at each fraction on its own, as the
+    published trainer does (an action a fraction; not with double_dqn)."""
+    target_dropout: bool = False
+    """false: the target network computes TD targets in eval mode (no dropout); true: with
+    its dropout on, as the published trainer leaves it (NetworkConfig.dropout > 0 only)."""
+    random_acting_fractions: bool = False
+    """false: the acting network's Q-values are the mean of its quantiles at the ONNX
+    contract's 32 fixed fractions (k + 0.5) / 32; true: at 32 random ones drawn afresh for
+    every row of every step (from the run's seeded generator), as the published trainer acts.
+    Snapshots and exported policies always use the fixed ones."""
     device: str = "cpu"
     """torch device of the networks and updates ("cpu", "cuda[:K]"); rollouts stay on the CPU."""
     bf16: bool = False
@@ -119,7 +131,10 @@ class DataConfig:
     success_ends_transitions: bool = True
     """true: an episode that terminates (the last evader encircled, or fewer than 3 pursuers
     left) ends its surviving pursuers' transitions at 0; false: they are bootstrapped, as the
-    published trainer does. Collisions always end a pursuer's transition; truncation never does."""
+    published trainer does. Collisions always end a pursuer's transition."""
+    truncation_ends: bool = False
+    """false: a training episode cut at train_max_steps bootstraps its pursuers' last
+    transitions; true: ends them at 0, as the published trainer does."""
     buffer_size: int = 500_000
     """replay capacity in pursuer transitions (about 1 KB each)."""
     learning_starts: int = 3000
@@ -316,7 +331,8 @@ NETWORK_FIELDS = ("model", "hidden", "layers", "heads")
 """Fields that fix the network's weights: a checkpoint continues only under the same values."""
 
 RETURN_FIELDS = (
-    "reward", "potential_shaping", "collision_value", "gamma", "success_ends_transitions", "reward_scale",
+    "reward", "potential_shaping", "collision_value", "gamma", "success_ends_transitions", "truncation_ends",
+    "reward_scale",
 )
 """Fields that fix what a stored transition holds (its return, discount and done): a saved
 replay buffer is reused only under the same values."""
@@ -458,5 +474,8 @@ def _validate(config: Config) -> None:
             f"decay_start: {learner.decay_start} must come before total_steps {schedule.total_steps} "
             "for the step size to fall to final_learning_rate"
         )
+    if learner.max_per_fraction and learner.double_dqn:
+        raise ConfigError("max_per_fraction: the greatest value at each fraction, or double_dqn's one online "
+                          "choice for every fraction: not both")
     if learner.batch_size > data.buffer_size:
         raise ConfigError(f"batch_size: {learner.batch_size} exceeds buffer_size {data.buffer_size}")

@@ -211,8 +211,10 @@ def td_losses(
 
     `model` and `target` are stacked networks of S = len(generators) seeds and `batch` their
     rows seed-major (S * R). The online network runs as it is (train mode: dropout on); the
-    target network, in eval mode, gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its
-    own argmax of the mean, or with `learner.double_dqn` the online network's argmax. `trim`
+    target network, put in eval mode (train mode, its dropout on, with `learner.target_dropout`),
+    gives R + gamma^k * (1 - done) * Z_target(s', a*) with a* its own argmax of the mean, or with
+    `learner.double_dqn` the online network's argmax, or with `learner.max_per_fraction` its
+    argmax at each fraction (quantile_td_target). `trim`
     cuts the slots empty in every row of the batch first (`trim_padding`: the same losses to
     float round-off, in less time); `learner.bf16` runs the networks under bfloat16 autocast,
     their heads' output layers and the loss in float32.
@@ -227,6 +229,7 @@ def td_losses(
     rewards, dones = torch.from_numpy(batch.rewards).to(device), torch.from_numpy(batch.dones).to(device)
     discounts = torch.from_numpy(batch.discounts).to(device)
     rows = len(actions) // seeds
+    target.train(learner.target_dropout)
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=learner.bf16):
         if model.distributional:
             taus = fractions(generators, rows, learner.num_quantiles, device)
@@ -237,7 +240,7 @@ def td_losses(
                 next_taus = fractions(generators, rows, learner.num_target_quantiles, device)
                 next_quantiles = target(*next_states, next_taus).quantiles
                 best = model(*next_states, next_taus).quantiles.mean(dim=1).argmax(dim=1) if learner.double_dqn else None
-                targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best)
+                targets = quantile_td_target(rewards, dones, next_quantiles, discounts, best, learner.max_per_fraction)
             return quantile_huber_rows(taken, taus, targets).view(seeds, rows).mean(dim=1)
         q_values = model(*states).quantiles[:, 0]  # [S * R, A]
         taken = q_values.gather(1, actions[:, None]).squeeze(1)

@@ -47,17 +47,24 @@ def quantile_td_target(
     next_quantiles: torch.Tensor,
     discounts: torch.Tensor,
     best: torch.Tensor | None = None,
+    per_fraction: bool = False,
 ) -> torch.Tensor:
     """IQN target quantiles r + discount * (1 - done) * Z_target(s', a*), a* = argmax_a mean_tau' Z_target,
-    or `best` (double DQN: the online network's argmax).
+    or `best` (double DQN: the online network's argmax); with `per_fraction`, max_a Z_target(s', a)
+    at each fraction tau' on its own (the published trainer's target).
 
     rewards [R], dones [R], next_quantiles [R, N', A] (target network at the fractions tau'),
     discounts [R] (gamma^k), best [R] int64 or None -> [R, N'].
     """
-    if best is None:
-        best = next_quantiles.mean(dim=1).argmax(dim=1)
-    index = best[:, None, None].expand(-1, next_quantiles.shape[1], 1)
-    chosen = next_quantiles.gather(2, index).squeeze(2)
+    if per_fraction:
+        if best is not None:
+            raise ValueError("quantile_td_target: per_fraction takes an action at each fraction, best one for all")
+        chosen = next_quantiles.amax(dim=2)
+    else:
+        if best is None:
+            best = next_quantiles.mean(dim=1).argmax(dim=1)
+        index = best[:, None, None].expand(-1, next_quantiles.shape[1], 1)
+        chosen = next_quantiles.gather(2, index).squeeze(2)
     return rewards[:, None] + discounts[:, None] * (1.0 - dones[:, None]) * chosen
 
 

@@ -167,7 +167,7 @@ def benchmark(config: Config, seeds: Sequence[int] = (1, 2, 3, 4), seconds: floa
                 start = time.process_time()
             turn = rollout.turn()
             states = turn.observation.rows(turn.rows).as_inputs()
-            step = rollout.step(epsilon_greedy(actor, states, schedule.start_e, rng))
+            step = rollout.step(epsilon_greedy(actor, states, schedule.start_e, rng, learner.random_acting_fractions))
             transitions.add(turn.rows, states, step.actions, step.observation, step.result, rng)
             timed_steps += 1
         rates[name] = timed_steps * schedule.num_envs / (time.process_time() - start)

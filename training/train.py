@@ -26,7 +26,9 @@ Transitions: each pursuer's step is stored with the reward the learner is taught
 (terl_rt.sim.reward.taught_reward under `DataConfig`: shaping, collision value, scale) and,
 when `DataConfig.store_pursuers` is set, only a random subset of a world step's pursuers
 enter the buffer. A pursuer's transition is terminal when it collides, and when its episode
-terminates if `DataConfig.success_ends_transitions`; truncation is bootstrapped.
+terminates if `DataConfig.success_ends_transitions`; when it is truncated, if
+`DataConfig.truncation_ends`. Acting takes the mean of the quantiles at the contract's fixed
+fractions, or at random ones (`LearnerConfig.random_acting_fractions`).
 
 metrics.jsonl holds one JSON object a line, told apart by "kind":
 - "train" (every `log_frequency` steps, at each evaluation and at the end): env_step,
@@ -77,6 +79,7 @@ from training.config import (
 from training.learner import Learner
 from training.losses import linear_schedule
 from training.networks import QNetwork
+from training.networks.encoders import NUM_FIXED_FRACTIONS
 from training.stops import StopRequests, TrainingStopped
 from training.torch_policy import TorchPolicy, as_tensors, network_device
 
@@ -122,22 +125,32 @@ def crossings(before: int, after: int, every: int) -> int:
 
 
 # ---------------------------------------------------------------- acting
-def greedy_actions(model: QNetwork, states: dict[str, np.ndarray]) -> np.ndarray:
-    """argmax of the eval-mode Q-values (fixed fractions, as the exported policy) of the states
-    with their empty slots trimmed (`trim_padding`): [R] int64."""
+def greedy_actions(model: QNetwork, states: dict[str, np.ndarray], fractions: np.ndarray | None = None) -> np.ndarray:
+    """argmax of the eval-mode Q-values of the states with their empty slots trimmed
+    (`trim_padding`): [R] int64. Q-values are the mean of the quantiles at the fixed fractions,
+    as the exported policy's, or at `fractions` [R, K] in [0, 1), a row's own."""
     if len(states["ego"]) == 0:
         return np.zeros(0, np.int64)
     model.eval()
+    inputs = as_tensors(trim_padding(states), network_device(model))
     with torch.inference_mode():
-        return model.q_values(*as_tensors(trim_padding(states), network_device(model))).argmax(dim=1).cpu().numpy()
+        if fractions is None:
+            q_values = model.q_values(*inputs)
+        else:
+            q_values = model(*inputs, torch.from_numpy(fractions).to(inputs[0].device)).quantiles.mean(dim=1)
+        return q_values.argmax(dim=1).cpu().numpy()
 
 
 def epsilon_greedy(
-    model: QNetwork, states: dict[str, np.ndarray], epsilon: float, rng: np.random.Generator
+    model: QNetwork, states: dict[str, np.ndarray], epsilon: float, rng: np.random.Generator,
+    random_fractions: bool = False,
 ) -> np.ndarray:
     """Action indices [R] for the rows' states [R, ...]: greedy in one batched forward,
-    each row replaced by a uniformly random action with probability `epsilon`."""
-    return explore(greedy_actions(model, states), epsilon, rng)
+    each row replaced by a uniformly random action with probability `epsilon`. With
+    `random_fractions` each row's Q-values are its mean at NUM_FIXED_FRACTIONS fractions drawn
+    from `rng` (LearnerConfig.random_acting_fractions), not at the fixed ones."""
+    drawn = rng.random((len(states["ego"]), NUM_FIXED_FRACTIONS), dtype=np.float32) if random_fractions else None
+    return explore(greedy_actions(model, states, drawn), epsilon, rng)
 
 
 def explore(chosen: np.ndarray, epsilon: float, rng: np.random.Generator) -> np.ndarray:
@@ -195,13 +208,14 @@ def taught_step(
     Returns their rewards [R] (terl_rt.sim.reward.taught_reward of the terms the world paid,
     under `data`'s shaping, collision value and scale), whether each transition is terminal [R]
     (the pursuer collided, or its episode terminated (all evaders encircled, or too few
-    pursuers left) when `data.success_ends_transitions`; truncated episodes, and terminated
-    ones otherwise, are bootstrapped) and whether each row's episode stops here [R]
+    pursuers left) when `data.success_ends_transitions`, or truncated when `data.truncation_ends`;
+    other transitions are bootstrapped) and whether each row's episode stops here [R]
     (terminated or truncated). potential [B * N]: Phi of the state each row's last step ended
     in, updated in place (0 where the episode stops).
     """
     ended = (result.terminated | result.truncated)[:, None]
-    terminal = result.collided | (result.terminated[:, None] if data.success_ends_transitions else False)
+    ends = (result.terminated & data.success_ends_transitions) | (result.truncated & data.truncation_ends)  # [B]
+    terminal = result.collided | ends[:, None]
     stops = np.broadcast_to(ended, terminal.shape).ravel()[rows]
     terminal = terminal.ravel()[rows]
     terms = result.reward_terms.reshape(-1, len(REWARD_TERMS))[rows]
@@ -494,7 +508,7 @@ class SeedState:
         group = self.groups[group_index]
         turn = group.rollout.turn()  # restarts the worlds whose episode ended in the last step
         states = turn.observation.rows(turn.rows).as_inputs()
-        step = group.rollout.step(epsilon_greedy(actor, states, epsilon, self.rng))
+        step = group.rollout.step(epsilon_greedy(actor, states, epsilon, self.rng, self.config.learner.random_acting_fractions))
         # the next observation is the one before any restart
         group.transitions.add(turn.rows, states, step.actions, step.observation, step.result, self.rng)
         pursuers = group.scenario.pursuers

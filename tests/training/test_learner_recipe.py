@@ -4,6 +4,8 @@ loss works, survivors bootstrapped as the published trainer does, and the bar va
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -16,6 +18,7 @@ from training.config import Config, ConfigError
 from training.networks import network_classes
 from training.checkpoint import network_from_config
 from training.learner import Learner, td_losses
+from training.losses import quantile_td_target
 from training.throughput import PLAIN, benchmark
 from training.train import TransitionStore, as_tensors, epsilon_greedy, greedy_actions, taught_step
 from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
@@ -198,3 +201,71 @@ def test_an_actor_never_refreshed_acts_as_the_first_network_does(tmp_path):
     assert len(actions["actor"]) > 0 and (actions["actor"] == actions["online"]).all()
     with pytest.raises(ConfigError, match="actor_update_frequency: must be >= 0"):
         tiny(actor_update_frequency=-1)
+
+
+# ---------------------------------------------------------------- the published trainer's choices
+def test_the_per_fraction_target_takes_the_greatest_value_at_each_fraction():
+    quantiles = torch.tensor([[[1.0, 4.0], [3.0, 0.0]]])  # [R=1, N'=2, A=2]: means 2.5 and 2.0 -> action 1 for both
+    zero, one = torch.tensor([0.0]), torch.tensor([1.0])
+    assert quantile_td_target(zero, zero, quantiles + torch.tensor([0.0, 0.5]), one).tolist() == [[4.5, 0.5]]
+    assert quantile_td_target(zero, zero, quantiles, one, per_fraction=True).tolist() == [[4.0, 3.0]]
+    with pytest.raises(ConfigError, match="max_per_fraction: .* not both"):
+        tiny(max_per_fraction=True, double_dqn=True)
+
+
+@pytest.mark.parametrize("target_dropout", [False, True])
+def test_the_target_network_draws_its_dropout_only_when_told(target_dropout):
+    config = tiny(dropout=0.5, target_dropout=target_dropout)
+    learner = Learner(config.network, config.learner, [1])
+    learner.network.eval()  # the online network without dropout: only the target's may differ
+    batch = curriculum_buffer(config).sample(64, np.random.default_rng(6))
+    losses = [td_losses(learner.network, learner.target_network, batch, config.learner,
+                        [torch.Generator().manual_seed(7)]).item() for _ in range(2)]
+    assert learner.target_network.training == target_dropout
+    assert (losses[0] != losses[1]) == target_dropout
+
+
+def test_acting_on_random_fractions_draws_them_from_the_run_generator():
+    config = tiny()
+    model = network_from_config(config.network)
+    states = curriculum_buffer(config).sample(32, np.random.default_rng(8)).observations
+    fractions = np.random.default_rng(9).random((32, 32), dtype=np.float32)
+    acted = epsilon_greedy(model, states, 0.0, np.random.default_rng(9), random_fractions=True)
+    model.eval()
+    with torch.inference_mode():
+        means = model(*as_tensors(states), torch.from_numpy(fractions)).quantiles.mean(dim=1)
+    assert (acted == means.argmax(dim=1).numpy()).all()
+    assert (greedy_actions(model, states, fractions) == acted).all()
+    # the fixed fractions draw nothing from the generator (explore alone draws a number a row):
+    # a run without the setting acts as before
+    rng = np.random.default_rng(9)
+    epsilon_greedy(model, states, 0.0, rng)
+    assert rng.random() == np.random.default_rng(9).random(33)[-1]
+
+
+@pytest.mark.parametrize("truncation_ends", [False, True])
+def test_a_truncated_episode_ends_its_transitions_only_when_told(truncation_ends):
+    turn, step = first_step()
+    step.result.truncated[0] = True
+    potential = np.zeros(len(turn.rows))
+    _, terminal, stops = taught_step(step.result, turn.rows, potential, tiny(truncation_ends=truncation_ends).data, 0.99)
+    assert list(terminal) == [truncation_ends] * 3 and stops.all()
+
+
+def test_a_run_with_the_published_choices_is_repeatable_and_resumes(tmp_path):
+    from training.train import train
+
+    config = tiny(
+        dropout=0.1, target_dropout=True, max_per_fraction=True, random_acting_fractions=True, truncation_ends=True,
+        curriculum=False, scenario="curriculum-1", train_max_steps=12, num_envs=4, learning_starts=32,
+        batch_size=16, buffer_size=2_000, snapshot_frequency=0, log_frequency=64, checkpoint_frequency=64,
+        target_network_frequency=64, total_steps=128,
+    )
+    for run in ("first", "again"):
+        train(config, tmp_path / run, show_progress=False)
+    weights = [(tmp_path / run / "model.safetensors").read_bytes() for run in ("first", "again")]
+    assert weights[0] == weights[1]  # the same seed and settings, the same weights
+    saved = json.loads((tmp_path / "first" / "config.json").read_text())
+    assert saved["learner"]["random_acting_fractions"] and saved["data"]["truncation_ends"]
+    assert train(config.replace(total_steps=192), tmp_path / "first", resume=tmp_path / "first",
+                 show_progress=False).env_step == 192
