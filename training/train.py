@@ -133,12 +133,9 @@ def greedy_actions(model: QNetwork, states: dict[str, np.ndarray], fractions: np
         return np.zeros(0, np.int64)
     model.eval()
     inputs = as_tensors(trim_padding(states), network_device(model))
+    taus = None if fractions is None else torch.from_numpy(fractions).to(inputs[0].device)
     with torch.inference_mode():
-        if fractions is None:
-            q_values = model.q_values(*inputs)
-        else:
-            q_values = model(*inputs, torch.from_numpy(fractions).to(inputs[0].device)).quantiles.mean(dim=1)
-        return q_values.argmax(dim=1).cpu().numpy()
+        return model.q_values(*inputs, taus).argmax(dim=1).cpu().numpy()
 
 
 def epsilon_greedy(

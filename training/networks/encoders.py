@@ -322,13 +322,16 @@ class QNetwork(nn.Module):
         evaders: torch.Tensor,
         obstacles: torch.Tensor,
         mask: torch.Tensor,
+        taus: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The contract outputs from one pass: q_values [B, 9] and target_weights [B, E] or None.
 
-        Q-values are the mean of the quantiles at the fixed fractions (k + 0.5) / 32,
-        so they are deterministic given the weights (in eval mode).
+        Q-values are the mean of the quantiles at `taus` [B, K]; the contract's are the fixed
+        fractions (k + 0.5) / 32 (taus None), so they are deterministic given the weights (in
+        eval mode).
         """
-        taus = fixed_fractions(device=ego.device)
+        if taus is None:
+            taus = fixed_fractions(device=ego.device)
         output = self(ego, teammates, evaders, obstacles, mask, taus)
         return output.quantiles.mean(dim=1), output.target_weights
 
@@ -339,6 +342,7 @@ class QNetwork(nn.Module):
         evaders: torch.Tensor,
         obstacles: torch.Tensor,
         mask: torch.Tensor,
+        taus: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Expected return of each pursuer action, [B, 9]; inputs as in `forward`."""
-        return self.policy_outputs(ego, teammates, evaders, obstacles, mask)[0]
+        """Expected return of each pursuer action, [B, 9]; inputs as in `policy_outputs`."""
+        return self.policy_outputs(ego, teammates, evaders, obstacles, mask, taus)[0]
