@@ -11,7 +11,7 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.evaluation.play import batch_steps, run_episode
 from terl_rt.evaluation.runs import EpisodeSpec, batches
 from terl_rt.logs.writer import EpisodeLogWriter

@@ -12,7 +12,7 @@ from mcap.writer import Writer
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.evaluation.play import run_episode
 from terl_rt.logs.format import TOPIC_WORLD, EpisodeLogError
 from terl_rt.logs.foxglove import COLORS

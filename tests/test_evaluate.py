@@ -15,7 +15,7 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.evaluation.play import run_episode
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
@@ -148,7 +148,7 @@ def test_interrupted_evaluation_keeps_every_step_taken_logged(policy, tmp_path):
 def test_killed_evaluation_leaves_a_log_readable_to_its_last_step(policy_path, tmp_path):
     log = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
-        from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+        from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
         from terl_rt.sim.scenario import Scenario
         evaluate({str(policy_path)!r}, Scenario.preset("small-15"), episodes=50, seed=0, log_path={str(log)!r})
     """)

@@ -14,7 +14,7 @@ from onnx_models import write_test_policy
 
 from terl_rt import Scenario, Simulator
 from terl_rt.cli.layout import layout_bytes
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.logs.format import TOPIC_WORLD
 from terl_rt.logs.foxglove import (
     DELETE_ALL,

@@ -23,7 +23,7 @@ from kept_logs import assert_log_keeps_complete_steps
 from processes import alive, assert_all_end, cmdline, descendants, start_eval, wait_for_log
 
 from terl_rt.cli.main import cli
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.sweep import run_sweep
 from terl_rt.logs.reader import EpisodeLogReader

@@ -11,7 +11,7 @@ from onnx_models import write_test_policy
 from PIL import Image
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.logs.foxglove import COLORS
 from terl_rt.logs.render import RenderError, render
 

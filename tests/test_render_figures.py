@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from terl_rt import Scenario
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.logs import render as render_module
 from terl_rt.logs.render import LEGEND, axis_ticks, render
 from terl_rt.policy.onnx_policy import OnnxPolicy

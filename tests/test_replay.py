@@ -10,7 +10,7 @@ import pytest
 from onnx_models import write_test_policy
 from tiny_worlds import capture_scenario
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.evaluation.play import run_episode
 from terl_rt.logs.format import EpisodeLogError
 from terl_rt.logs.reader import EpisodeLogReader

@@ -17,7 +17,7 @@ from onnx_models import write_test_policy
 from kept_logs import assert_log_keeps_complete_steps
 from processes import children, cmdline, wait_for_log
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 

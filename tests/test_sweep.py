@@ -14,7 +14,7 @@ from onnx_models import write_test_policy
 
 from terl_rt.cli.main import cli
 from terl_rt.evaluation.backends import RayMissing, open_backend
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.sweep import TABLE_COLUMNS, run_sweep
 from terl_rt.policy.onnx_policy import OnnxPolicy

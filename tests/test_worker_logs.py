@@ -13,7 +13,7 @@ from onnx_models import write_test_policy
 from kept_logs import assert_log_keeps_complete_steps
 from processes import assert_all_end, children, start_eval, wait_for_log
 
-from terl_rt.evaluation.episodes import evaluate_policy as evaluate
+from terl_rt.evaluation.evaluate import evaluate_policy as evaluate
 from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.resimulate import verify
 from terl_rt.policy.onnx_policy import OnnxPolicy

@@ -61,7 +61,7 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.reward import REWARD_TERMS, taught_reward

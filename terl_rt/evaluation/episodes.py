@@ -12,13 +12,10 @@ whatever the number of workers or the batch size (terl_rt.evaluation.runs).
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
-from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 
-from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
@@ -135,28 +132,6 @@ def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
     if metrics.success:
         return "success"
     return "step_limit" if metrics.steps >= max_steps else "too_few_pursuers"
-
-
-def evaluate_policy(
-    policy: Policy | str | os.PathLike,
-    scenario: Scenario,
-    episodes: int,
-    seed: int,
-    max_steps: int | None = None,
-    workers: int = 1,
-    log_path: str | os.PathLike | EpisodeLogWriter | None = None,
-    progress: Progress | None = None,
-    threads: int | None = None,
-    backend: Backend | None = None,
-    envs: int = BATCH_ENVS,
-) -> ScenarioResult:
-    """`terl_rt.evaluate` on one scenario, its result: the arguments are evaluate's
-    (`log_path` its `log`, `progress` called after each episode with its index and metrics)."""
-    from terl_rt.evaluation.evaluate import evaluate  # built on this module: imported when called
-
-    per_scenario = None if progress is None else (lambda scenario, count: nullcontext(progress))
-    return evaluate(policy, scenario, episodes, seed, max_steps=max_steps, log=log_path, workers=workers,
-                    threads=threads, backend=backend or "local", envs=envs, progress=per_scenario).result
 
 
 def run_scenario(

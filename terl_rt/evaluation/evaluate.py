@@ -115,6 +115,26 @@ def evaluate(
                       0 if writer is None else writer.episodes_written)
 
 
+def evaluate_policy(
+    policy: Policy | str | os.PathLike,
+    scenario: Scenario,
+    episodes: int,
+    seed: int,
+    max_steps: int | None = None,
+    workers: int = 1,
+    log_path: str | os.PathLike | EpisodeLogWriter | None = None,
+    progress: Progress | None = None,
+    threads: int | None = None,
+    backend: Backend | None = None,
+    envs: int = BATCH_ENVS,
+) -> ScenarioResult:
+    """`terl_rt.evaluate` on one scenario, its result: the arguments are evaluate's
+    (`log_path` its `log`, `progress` called after each episode with its index and metrics)."""
+    per_scenario = None if progress is None else (lambda scenario, count: nullcontext(progress))
+    return evaluate(policy, scenario, episodes, seed, max_steps=max_steps, log=log_path, workers=workers,
+                    threads=threads, backend=backend or "local", envs=envs, progress=per_scenario).result
+
+
 def _in_process(backend: Backend | str, workers: int | None) -> bool:
     """Whether the episodes run in this process: the local backend with one worker."""
     if isinstance(backend, str):

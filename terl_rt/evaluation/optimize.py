@@ -9,7 +9,7 @@ it, stopping at the first check it fails:
 3. decisions: the same greedy action as the float graph on at least DECISION_AGREEMENT of
    the recorded observations' rows (`record_observations`: the float policy's own episodes);
 4. suite: on every scenario, its success rate lies inside the float policy's exact 95 %
-   interval over the same episodes (terl_rt.evaluation.episodes.evaluate_policy);
+   interval over the same episodes (terl_rt.evaluation.evaluate.evaluate_policy);
 5. faster: its median call on the recorded rows of the largest scenario takes at most
    1 / MIN_SPEEDUP of the float's.
 
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.evaluation.stats import success_interval
 from terl_rt.policy.flops import OnnxMissing
 from terl_rt.policy.onnx_policy import OnnxPolicy, observation_inputs

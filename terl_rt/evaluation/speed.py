@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from terl_rt.evaluation.backends import open_backend
-from terl_rt.evaluation.episodes import evaluate_policy
+from terl_rt.evaluation.evaluate import evaluate_policy
 from terl_rt.evaluation.optimize import record_observations
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.policy.flops import MATMUL_GFLOPS, OnnxMissing, flops_per_row

@@ -1,6 +1,6 @@
 """A policy's results set against the TERL paper: docs/results.md and docs/results.png.
 
-`write_report` takes the `ScenarioResult`s of `terl_rt.evaluation.episodes.evaluate_policy` and writes a
+`write_report` takes the `ScenarioResult`s of `terl_rt.evaluation.evaluate.evaluate_policy` and writes a
 markdown page (the policy, the command, the date; a row per preset beside the paper's
 TERL row for its scale group; a row per scale group; which of the paper's goals are
 met) and a figure in the manner of the paper's Fig. 3 (`terl_rt.paper.figures`).

@@ -395,7 +395,7 @@ def test_a_retired_knob_away_from_its_neutral_value_is_refused():
 
 # ---------------------------------------------------------------- one evaluator
 def test_a_snapshot_measures_what_terl_rt_eval_measures_on_the_exported_policy(tmp_path):
-    from terl_rt.evaluation.episodes import evaluate_policy
+    from terl_rt.evaluation.evaluate import evaluate_policy
     from terl_rt.policy.onnx_policy import OnnxPolicy
     from training.checkpoint import export_checkpoint
 
