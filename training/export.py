@@ -11,6 +11,7 @@ policy again from the weights inside it, with this exporter's graph.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import warnings
@@ -249,9 +250,13 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {entry.key: entry.value for entry in proto.metadata_props}
 
 
+@functools.cache
 def simulated_inputs(evader_slots: int, steps: int = 20) -> tuple[str, dict[str, torch.Tensor]] | None:
     """Real observations: the active pursuers of the first paper preset with `evader_slots`
-    evader slots, after `steps` random steps from seed 0. None if no preset has that E."""
+    evader slots, after `steps` random steps from seed 0. None if no preset has that E.
+
+    Made once a process (a stack of seeds exports each seed with the same cases): every call
+    returns the same tensors, which no caller may change."""
     names = [name for name in PAPER_SUITE if Scenario.preset(name).evader_slots == evader_slots]
     if not names:
         return None

@@ -49,7 +49,7 @@ train_max_steps = 30
 [segment.run]
 log_frequency = 40
 checkpoint_frequency = 40
-snapshot_frequency = 40
+snapshot_frequency = 80
 snapshot_episodes = 1
 snapshot_preset = "small-11"
 eval_max_steps = 10
