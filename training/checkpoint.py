@@ -139,7 +139,10 @@ def save_snapshot(folder: str | Path, config: Config, model: QNetwork, counters:
 
 
 def _write_weights(path: Path, weights: dict[str, torch.Tensor], config: Config, counters: Counters) -> None:
-    metadata = {"config": json.dumps(config.to_dict()), "env_step": str(counters.env_step)}
+    """`weights` as safetensors, its metadata one key (`terl`: the config and environment step as
+    JSON, keys sorted): safetensors writes metadata keys in a hash map's order, which changes from
+    process to process, so one key is what makes the same weights the same bytes."""
+    metadata = {"terl": json.dumps({"config": config.to_dict(), "env_step": counters.env_step}, sort_keys=True)}
     state = {key: value.detach().cpu().contiguous() for key, value in weights.items()}
     _replace_file(path, lambda temporary: save_file(state, str(temporary), metadata=metadata))
 
