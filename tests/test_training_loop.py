@@ -27,6 +27,7 @@ from training.learner import Learner
 from training.networks import network_classes
 from training.train import (
     METRICS_FILE,
+    REPLAY_FILE,
     epsilon_greedy,
     recent_means,
     train,
@@ -314,6 +315,36 @@ def test_a_refill_stopped_midway_goes_on_after_the_next_resume(tmp_path, monkeyp
     assert again.updates == before.updates + 80 // 4
     note = [json.loads(line)["note"] for line in (out / METRICS_FILE).read_text().splitlines() if '"resume"' in line][-1]
     assert "a refill cut off" in note and f"refilled to the {before.replay_transitions:,} transitions it held" in note
+
+
+
+def test_without_save_replay_only_a_stop_saves_the_buffer_and_the_resume_goes_on_with_it(tmp_path, monkeypatch):
+    # save_replay = false: the checkpoint a stop writes (SIGTERM at step 120) keeps the buffer, the
+    # resume learns on from it with no refill, and the checkpoint after removes the stale file.
+    config = tiny_config(total_steps=200, curriculum=False, scenario="curriculum-1", buffer_size=10_000,
+                         learning_starts=80, snapshot_frequency=0, checkpoint_frequency=40, save_replay=False)
+    out = tmp_path / "run"
+    calls = 0
+
+    def act_then_stop(*args):
+        nonlocal calls
+        calls += 1
+        if calls == 15:  # the batch step that reaches step 120 (8 worlds a step)
+            signal.raise_signal(signal.SIGTERM)
+        return epsilon_greedy(*args)
+
+    monkeypatch.setattr("training.train.epsilon_greedy", act_then_stop)
+    with pytest.raises(TrainingStopped):
+        train(config, out, show_progress=False)
+    monkeypatch.undo()
+    cut = read_counters(out)
+    assert cut.env_step == 120 and (out / REPLAY_FILE).is_file()
+
+    done = train(config, out, resume=out, show_progress=False)
+    assert done.env_step == 200 and done.updates == cut.updates + 80 // 4
+    note = [json.loads(line)["note"] for line in (out / METRICS_FILE).read_text().splitlines() if '"resume"' in line][-1]
+    assert f"with its replay buffer ({cut.replay_transitions:,} transitions)" in note
+    assert not (out / REPLAY_FILE).exists()
 
 
 # ---------------------------------------------------------------- end to end

@@ -144,7 +144,9 @@ class DataConfig:
     pursuers that acted (0: all of them, the published setting)."""
     save_replay: bool = True
     """save the replay buffer with every checkpoint (replay.npz): a resume on the same machine
-    continues with it; without it the buffer is refilled first."""
+    continues with it; without it the buffer is refilled first. False saves it only with the
+    checkpoint a stop writes (a signal, a grid's time limit), which the next checkpoint removes:
+    a run cut into sessions on one machine then refills only where that file is gone."""
 
 
 @dataclass(frozen=True)

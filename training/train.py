@@ -531,7 +531,7 @@ class SeedState:
         if better:
             counters.best_score, counters.best_step = record["score"], counters.env_step
             counters.replay_transitions = len(self.buffer)
-            self.checkpoint(learner, index, self.out_dir / BEST_FOLDER, save_replay=False)
+            self.checkpoint(learner, index, self.out_dir / BEST_FOLDER)
             progress.note(f"{self.label}snapshot at {counters.env_step}: score {record['score']:.3f}, "
                           f"the best so far (kept in {BEST_FOLDER}/)")
 
@@ -554,13 +554,17 @@ class SeedState:
         })
         self.losses.clear()
 
-    def checkpoint(self, learner: Learner, index: int, folder: Path | None = None, save_replay: bool = True) -> None:
-        """A whole checkpoint into `folder` (the run's own by default): the replay buffer first
-        (DataConfig.save_replay), state.json last."""
+    def checkpoint(self, learner: Learner, index: int, folder: Path | None = None, stopping: bool = False) -> None:
+        """A whole checkpoint into `folder` (the run's own by default), state.json last. Into its
+        own folder the replay buffer goes first: with every checkpoint (DataConfig.save_replay),
+        else with the one a stop writes alone (`stopping`: a resume on this machine goes on with it
+        rather than refill), a file the next checkpoint removes, as it would be stale."""
         if folder is None:
             self.counters.replay_transitions = max(len(self.buffer), self.refill_to)  # a refill cut off still owes what it held
-        if save_replay and self.config.data.save_replay:
-            self.buffer.save(self.out_dir / REPLAY_FILE)
+            if self.config.data.save_replay or stopping:
+                self.buffer.save(self.out_dir / REPLAY_FILE)
+            else:
+                (self.out_dir / REPLAY_FILE).unlink(missing_ok=True)
         online, target, optimizer = learner.seed_state(index)
         state = TrainingState(online, target, optimizer, self.counters, rng_states(self.rng, learner.generators[index]))
         save_checkpoint(folder or self.out_dir, self.config, state)
@@ -665,11 +669,12 @@ def refresh_progress(progress: Progress, seeds: list[SeedState], env_step: int, 
         progress.show(progress_line(seeds, env_step, total_steps, rate, epsilon, stage_name))
 
 
-def checkpoint_seeds(seeds: list[SeedState], learner: Learner, env_step: int, progress: Progress) -> None:
-    """Every seed's checkpoint in its own folder (`SeedState.checkpoint`)."""
+def checkpoint_seeds(seeds: list[SeedState], learner: Learner, env_step: int, progress: Progress,
+                     stopping: bool = False) -> None:
+    """Every seed's checkpoint in its own folder (`SeedState.checkpoint`; `stopping`: the one a stop writes)."""
     for k, seed in enumerate(seeds):
         progress.show(f"step {env_step:,}: {seed.label}checkpoint ({len(seed.buffer):,} transitions)")
-        seed.checkpoint(learner, k)
+        seed.checkpoint(learner, k, stopping=stopping)
 
 
 # ---------------------------------------------------------------- the loop
@@ -774,7 +779,7 @@ def train_seeds(
             # --- checkpoint every seed (the replay buffer first: state.json, written last, marks a whole checkpoint)
             stopping = stops.received is not None
             if finished or stopping or crossings(previous_step, env_step, run.checkpoint_frequency):
-                checkpoint_seeds(seeds, learner, env_step, progress)
+                checkpoint_seeds(seeds, learner, env_step, progress, stopping)
             if stopping:
                 progress.close()
                 raise TrainingStopped(stops.received, env_step, [seed.out_dir for seed in seeds])
