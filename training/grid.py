@@ -60,6 +60,13 @@ class Cell:
         """The cell's stdout and stderr, every attempt appended: GRID_OUT/<method>/seed-<seed>.log."""
         return self.out.with_name(f"{self.out.name}.log")
 
+    def logs(self) -> list[Path]:
+        """The logs of the cell's runs that exist: its own (`log`), then those of the stacks it
+        trained in (`CellStack.log`: GRID_OUT/<method>/seeds-<S>-<S>....log naming its seed)."""
+        stacks = sorted(path for path in self.out.parent.glob("seeds-*.log")
+                        if str(self.seed) in path.stem.removeprefix("seeds-").split("-"))
+        return [path for path in (self.log, *stacks) if path.is_file()]
+
     def arguments(self) -> list[str]:
         """The arguments of `python -m training run` (after RUN_PROGRAM) that make this cell."""
         device = [] if self.device is None else ["--device", self.device]

@@ -126,7 +126,9 @@ def seed_row(cell: Cell, recipe: Recipe, is_shipped: bool, records: list[dict[st
     """One seed's row of a method card: its run's counters and its shipped snapshot's evaluation,
     or why it has none."""
     if not is_shipped:
-        return f"| {cell.seed} | not finished (failed, stopped or not run): see `{cell.log}` | | | | | | |"
+        logs = ", ".join(f"`{path}`" for path in cell.logs())
+        why = f"see {logs}" if logs else "no log (never run)"
+        return f"| {cell.seed} | not finished (failed, stopped or not run): {why} | | | | | | |"
     counters: Counters = read_counters(shipped_checkpoint(recipe, cell.out))
     last = read_counters(segment_folder(cell.out, len(recipe.segments), recipe.segments[-1]))
     head = f"| {cell.seed} | {last.env_step:,} | {last.updates:,} | {last.wall_seconds / 3600:.1f} h "

@@ -22,7 +22,7 @@ from training.__main__ import main
 from training.grid import LocalProcesses, plan_grid, run_grid
 from training.recipe import load_recipe, segment_folder
 from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
-from training.ship import shipped_line
+from training.ship import seed_row, shipped_line
 from terl_rt.policy.contract import META_METHOD, META_SEED
 
 REPOSITORY = Path(__file__).resolve().parents[2]
@@ -165,6 +165,20 @@ def test_a_seed_that_did_not_finish_keeps_its_row_in_the_card(grid):
     card = (root / "exported" / "tiny-dqn.md").read_text()
     assert f"| 3 | not finished (failed, stopped or not run): see `{root / 'runs' / 'tiny-dqn' / 'seed-3.log'}` |" in card
     assert "--seeds 1,2,3 " in card and not (root / "exported" / "tiny-dqn-seed-3.onnx").exists()
+
+
+def test_a_cells_logs_are_its_own_and_those_of_the_stacks_it_trained_in(tmp_path):
+    cells = {cell.seed: cell for cell, _ in plan_grid(write_recipes(tmp_path / "recipes")[:1], [1, 2, 3, 12],
+                                                      tmp_path / "runs")}
+    folder = tmp_path / "runs" / "tiny-terl"
+    folder.mkdir(parents=True)
+    for name in ("seed-1.log", "seeds-1-2.log", "seeds-2.log", "seeds-12-13.log"):
+        (folder / name).write_text("")
+    assert cells[1].logs() == [folder / "seed-1.log", folder / "seeds-1-2.log"]
+    assert cells[2].logs() == [folder / "seeds-1-2.log", folder / "seeds-2.log"]
+    assert cells[12].logs() == [folder / "seeds-12-13.log"] and cells[3].logs() == []
+    assert "not finished (failed, stopped or not run): no log (never run) |" in seed_row(
+        cells[3], load_recipe(tmp_path / "recipes" / "tiny-terl.toml"), False, [])
 
 
 # ---------------------------------------------------------------- failures and stops (stand-in cells, no torch)
