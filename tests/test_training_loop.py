@@ -317,7 +317,6 @@ def test_a_refill_stopped_midway_goes_on_after_the_next_resume(tmp_path, monkeyp
     assert "a refill cut off" in note and f"refilled to the {before.replay_transitions:,} transitions it held" in note
 
 
-
 def test_without_save_replay_only_a_stop_saves_the_buffer_and_the_resume_goes_on_with_it(tmp_path, monkeypatch):
     # save_replay = false: the checkpoint a stop writes (SIGTERM at step 120) keeps the buffer, the
     # resume learns on from it with no refill, and the checkpoint after removes the stale file.
