@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from training.__main__ import main
-from training.curves import CurvesError, plot_curves, read_metrics
+from training.curves import CurvesError, plot_curves, plot_seed_curves, read_metrics
 
 pytest.importorskip("matplotlib")
 
@@ -43,6 +43,20 @@ def test_snapshot_evaluations_are_plotted_with_the_best_starred(tmp_path):
     out = plot_curves(tmp_path / "metrics.jsonl", tmp_path / "curves.png")
     with Image.open(out) as image:
         assert image.format == "PNG"
+
+
+@pytest.mark.parametrize("star_best", [True, False])
+def test_seed_curves_star_the_best_snapshot_only_where_it_ships(tmp_path, monkeypatch, star_best):
+    from matplotlib.axes import Axes
+
+    markers = []  # each plot call's format string
+    plot = Axes.plot
+    monkeypatch.setattr(Axes, "plot", lambda axis, *args, **kw: markers.extend(args[2:3]) or plot(axis, *args, **kw))
+    evaluation = {"scenario": "small-15", "success_rate": 1.0, "collision_ratio_mean": 0.03}
+    snapshot = {"kind": "snapshot", "env_step": 2000, "score": 0.8, "best": True, "evaluations": [evaluation] * 2}
+    out = plot_seed_curves({"seed 1": RECORDS + [snapshot]}, tmp_path / "seeds.png", star_best=star_best)
+    assert out.stat().st_size > 0
+    assert ("*" in markers) == star_best
 
 
 def test_a_log_without_finished_episodes_is_refused_by_name(tmp_path):

@@ -38,12 +38,14 @@ def _pyplot() -> Any:
     return plt
 
 
-def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "") -> Path:
+def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path, title: str = "",
+                     star_best: bool = True) -> Path:
     """Write a PNG of several runs' curves in one figure, a colour a run (e.g. a method's seeds).
 
     `runs`: label -> the run's metrics records in order (every segment's metrics.jsonl, one after
     the other). Top: success rate of the recent episodes (exploring); bottom: success rate of the
-    snapshot evaluations on the snapshot preset (the selection's episodes), the best starred.
+    snapshot evaluations on the snapshot preset (the selection's episodes), the best starred where
+    `star_best` (a run that ships its last model draws no star: no snapshot was chosen).
     x axis: environment steps. A run without records keeps its label in the legend.
     """
     plt = _pyplot()
@@ -56,7 +58,7 @@ def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], out_path: str | Path
         bottom.plot([r["env_step"] for r in shown], [r["evaluations"][1]["success_rate"] for r in shown], "x-",
                     color=colour, linewidth=0.8)
         best = [r for r in shown if r.get("best")]
-        if best:
+        if star_best and best:
             bottom.plot([best[-1]["env_step"]], [best[-1]["evaluations"][1]["success_rate"]], "*", markersize=12,
                         color=colour)
     preset = next((r["evaluations"][1]["scenario"] for records in runs.values() for r in records

@@ -55,7 +55,8 @@ def ship_grid(cells: Sequence[tuple[Cell, Recipe]], folder: Path, machine: str) 
         }
         metrics = {cell: cell_metrics(recipe, cell) for cell, recipe in seeds}
         figure = plot_seed_curves({f"seed {cell.seed}": records for cell, records in metrics.items()},
-                                  folder / f"{method}-seeds.png", title=f"{method}: every seed")
+                                  folder / f"{method}-seeds.png", title=f"{method}: every seed",
+                                  star_best=seeds[0][1].ships_from == "best")
         card = folder / f"{method}.md"
         with atomic_output(card, replace=True) as partial:
             partial.write_text(method_card(method, seeds, shipped, metrics, figure, machine))
