@@ -15,14 +15,13 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
-import onnx
 import pytest
-from onnx import numpy_helper
+import torch
 
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
 from training.grid import LocalProcesses, plan_grid, run_grid
+from training.onnx_weights import network_from_onnx
 from training.recipe import load_recipe, segment_folder
 from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
 from training.ship import seed_row, shipped_line
@@ -98,12 +97,6 @@ def write_recipes(folder: Path) -> list[Path]:
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def weights(path: Path) -> dict[str, np.ndarray]:
-    """An ONNX file's float initializers by name."""
-    arrays = {tensor.name: numpy_helper.to_array(tensor) for tensor in onnx.load(str(path)).graph.initializer}
-    return {name: array for name, array in arrays.items() if array.dtype.kind == "f"}
 
 
 @pytest.fixture(scope="module")
@@ -390,8 +383,9 @@ def test_a_grid_of_cells_alone_ships_the_policies_of_stacked_seeds(grid, tmp_pat
             name = f"{method}-seed-{seed}.onnx"
             # Equal to float round-off, not in bytes: a stack trims the token slots empty in all
             # its seeds' rows (trim_padding), so a seed's tokens may be padded otherwise than alone.
-            alone, stacked = weights(tmp_path / "exported" / name), weights(root / "exported" / name)
+            alone = network_from_onnx(tmp_path / "exported" / name)[0].state_dict()
+            stacked = network_from_onnx(root / "exported" / name)[0].state_dict()
             assert alone.keys() == stacked.keys()
             for key, value in stacked.items():
-                assert np.allclose(alone[key], value, rtol=0, atol=1e-4 * np.abs(value).max()), (name, key)
+                assert torch.allclose(alone[key], value, rtol=0, atol=1e-4 * float(value.abs().max())), (name, key)
     assert main(arguments) == 0  # run again: every cell finished, nothing to do
