@@ -115,3 +115,13 @@ def with_interval(point: dict[str, Any]) -> dict[str, Any]:
     successes = round(point["success_rate"] * point["episodes"])
     low, high = success_interval(successes, point["episodes"])
     return {**point, "success_low": low, "success_high": high}
+
+
+def picked_snapshot(points: Sequence[dict[str, Any]], preset: str) -> dict[str, Any]:
+    """The point of one run's curve (`points`, from `snapshot_curve`) whose snapshot a rule that
+    sees `preset` alone ships: the most successes there, then the lowest collision ratio, then the
+    latest step. Raises CurvesError when no point is of `preset`."""
+    candidates = [point for point in points if point["scenario"] == preset]
+    if not candidates:
+        raise CurvesError(f"no snapshot evaluated on {preset}")
+    return max(candidates, key=lambda point: (point["success_rate"], -point["collision_ratio_mean"], point["env_step"]))

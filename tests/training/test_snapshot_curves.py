@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from training.__main__ import main
 from training.checkpoint import CONFIG_FILE, Counters, network_from_config, save_snapshot
 from training.config import Config
@@ -94,3 +96,34 @@ def test_the_stage_starts_of_seeds_on_one_schedule_are_drawn_once(tmp_path):
                        + json.dumps({"kind": "train", "env_step": 300}) + "\n")
         logs.append(log)
     assert stage_starts(logs) == [{"env_step": 100, "stage": "curriculum-1"}, {"env_step": 200, "stage": "curriculum-2"}]
+
+
+def test_a_pick_takes_the_most_successes_then_the_fewest_collisions_then_the_latest_step():
+    from training.curves import CurvesError
+    from training.snapshot_curves import picked_snapshot
+
+    def point(step, scenario, success, collisions):
+        return {"env_step": step, "scenario": scenario, "success_rate": success, "collision_ratio_mean": collisions}
+
+    points = [point(500, "small-15", 0.9, 0.0), point(500, "large-80", 1.0, 0.0), point(1000, "small-15", 1.0, 0.5),
+              point(1500, "small-15", 1.0, 0.2), point(2000, "small-15", 1.0, 0.2), point(2500, "small-15", 0.8, 0.0)]
+    assert picked_snapshot(points, "small-15")["env_step"] == 2000
+    assert picked_snapshot(points, "large-80")["env_step"] == 500
+    with pytest.raises(CurvesError, match="no snapshot evaluated on cc-28"):
+        picked_snapshot(points, "cc-28")
+
+
+def test_a_curve_names_the_folder_of_each_runs_pick(tmp_path, capsys):
+    run = make_run(tmp_path / "run")
+    assert main(["curve", str(run), "--scenario", "small-15", "--pick", "small-11", "--episodes", "2",
+                 "--max-steps", "20"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(" | ")[2] for line in lines[2:6]] == ["small-15", "small-11", "small-15", "small-11"]
+    (picked,) = [line for line in lines if line.startswith("picked by small-11: seed 1 at ")]
+    step = picked.split(" at ")[1].split(" ")[0]
+    assert picked.endswith(f"({run / 'snapshots' / step})") and (run / "snapshots" / step).is_dir()
+
+    assert main(["curve", str(run), "--scenario", "small-11", "--pick", "small-11", "--episodes", "2",
+                 "--max-steps", "20", "--json"]) == 0
+    points = json.loads(capsys.readouterr().out)
+    assert sum(point["picked"] for point in points) == 1

@@ -58,9 +58,14 @@ def snapshots_command(run: Path, as_json: bool) -> None:
 @click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True, help="torch intra-op threads.")
 @output_option("FILE.png", "Also plot the curves into this PNG.", required=False)
 @click.option("--title", default="", help="Figure title.")
-@click.option("--json", "as_json", is_flag=True, help="Print every point as one JSON list instead of a table.")
+@click.option("--pick", default=None, metavar="PRESET",
+              help="Also pick each run's snapshot by PRESET alone (evaluated too if no --scenario names it): the "
+                   "most successes there, then the lowest collision ratio, then the latest step; its folder is "
+                   "what `python -m training export` takes. A rule beside the last model that sees no larger team.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print every point as one JSON list instead of a table (with --pick, each point's \"picked\").")
 def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: int, seed: int, max_steps: int,
-                  threads: int, output: Path | None, title: str, as_json: bool) -> None:
+                  threads: int, output: Path | None, title: str, pick: str | None, as_json: bool) -> None:
     """Learning curves of runs' kept snapshots (RUN_DIR/snapshots/<step>/, `keep_snapshots`):
     each network evaluated greedy on every --scenario, as the run's snapshots are (in-process,
     episode k with seed --seed + k). Each evaluation is stored beside its network
@@ -70,14 +75,20 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
     column a preset, a colour a run, the curriculum's stage starts dashed.
 
     \b
-    Example (the authors' protocol, issue 53):
+    Examples (the authors' protocol, issue 53):
       python -m training curve runs/authors/terl-authors/seed-{1,2,3}/1-curriculum -o curves.png
+      # each seed's snapshot by small-15 alone, exported under a method name of its own:
+      python -m training curve runs/authors/terl-authors/seed-1/1-curriculum --pick small-15
+      python -m training export runs/authors/terl-authors/seed-1/1-curriculum/snapshots/STEP \\
+        --method terl-authors-small -o runs/three/terl-authors-small-seed-1.onnx
     """
     from terl_rt.sim.scenario import Scenario, ScenarioError
     from training.curves import plot_snapshot_curves, stage_starts
-    from training.snapshot_curves import run_seed, snapshot_curve, with_interval
-    from training.train import METRICS_FILE
+    from training.snapshot_curves import picked_snapshot, run_seed, snapshot_curve, with_interval
+    from training.train import METRICS_FILE, SNAPSHOTS_FOLDER
 
+    if pick is not None and pick not in presets:
+        presets = (*presets, pick)
     for preset in presets:
         try:
             Scenario.preset(preset)
@@ -92,8 +103,10 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
             run, presets, episodes, seed, max_steps, announce=lambda text: click.echo(text, err=True))]
         for label, run in zip(labels, runs)
     }
+    picks = {label: picked_snapshot(points, pick) for label, points in curves.items()} if pick is not None else {}
     if as_json:
-        click.echo(json.dumps([{"run": label, **point} for label, points in curves.items() for point in points]))
+        click.echo(json.dumps([{"run": label, **point, **({"picked": point is picks[label]} if picks else {})}
+                               for label, points in curves.items() for point in points]))
     else:
         click.echo("| run | step | preset | success [95 % interval] | travel time | collision ratio |")
         click.echo("|---|---:|---|---|---:|---:|")
@@ -104,6 +117,8 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
                     f"[{point['success_low']:.2f}, {point['success_high']:.2f}] | {point['travel_time_s_mean']:.1f} s | "
                     f"{point['collision_ratio_mean']:.3f} |"
                 )
+        for (label, point), run in zip(picks.items(), runs):
+            click.echo(f"picked by {pick}: {label} at {point['env_step']:,} ({run / SNAPSHOTS_FOLDER / str(point['env_step'])})")
     if output is not None:
         stages = stage_starts([run / METRICS_FILE for run in runs])
         click.echo(f"{plot_snapshot_curves(curves, output, title, stages)}: learning curves of {len(runs)} runs", err=True)
