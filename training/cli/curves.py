@@ -117,8 +117,9 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
                     f"[{point['success_low']:.2f}, {point['success_high']:.2f}] | {point['travel_time_s_mean']:.1f} s | "
                     f"{point['collision_ratio_mean']:.3f} |"
                 )
-        for (label, point), run in zip(picks.items(), runs):
-            click.echo(f"picked by {pick}: {label} at {point['env_step']:,} ({run / SNAPSHOTS_FOLDER / str(point['env_step'])})")
+        for label, run in zip(labels, runs) if picks else ():
+            step = picks[label]["env_step"]
+            click.echo(f"picked by {pick}: {label} at {step:,} ({run / SNAPSHOTS_FOLDER / str(step)})")
     if output is not None:
         stages = stage_starts([run / METRICS_FILE for run in runs])
         click.echo(f"{plot_snapshot_curves(curves, output, title, stages)}: learning curves of {len(runs)} runs", err=True)
