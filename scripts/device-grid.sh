@@ -21,13 +21,19 @@
 # cells that it did not touch stay behind, so that the archives keep under the 16 MiB a file
 # that comes back) are packed, without replay buffers (best/ and kept snapshots' networks stay),
 # one archive a method: $OUT/<method>.tar.gz. Unpack with `tar xzf METHOD.tar.gz -C runs/comparison`.
-# First lent on 2026-11-27: 6 cells on an H100 machine's 16 cores, 8 minutes, reached 60-116 k
-# steps each from scratch (docs/training.md, "Speed").
+# The tests marked cuda run first (pytest -m cuda; .whl carries pytest and onnx). First lent on
+# 2026-11-27: 6 cells on an H100 machine's 16 cores, 8 minutes, reached 60-116 k steps each from
+# scratch (docs/training.md, "Speed"). On an H200 on 2026-11-30 one stack's update ran 36 a
+# second for 1, 2 or 3 seeds (docs/training.md, "GPU"): stacks of three pay there. The working
+# tree travels only under 64 MiB with what is carried: move aside what the call does not read.
 set -euo pipefail
 minutes=$1
 shift
 grid_out=${GRID_OUT:-runs/comparison}
 source scripts/device-wheels.sh
+if [ "${DEVICE:-cuda}" != cpu ]; then  # the learner on the GPU: its tests first (a minute), or nothing trains
+    python3 -m pytest -q -p no:cacheprovider -m cuda tests/training/test_seeds_together.py
+fi
 mkdir -p "$grid_out"
 started=$(mktemp)
 status=0

@@ -61,11 +61,12 @@ class Learner:
             generator = torch.Generator()
             generator.set_state(torch.get_rng_state())
             generators.append(generator)
+        # Flattened before the template moves: Module.to moves networks[0] in place.
+        weights = flatten_weights(networks).to(self.device)
         self.template = networks[0].to(self.device)
         self.seeds = list(seeds)
         self.generators = generators
         """[S] each seed's CPU generator of quantile fractions (saved in its checkpoints as "torch")."""
-        weights = flatten_weights(networks).to(self.device)
         self._build(weights, weights.clone(), [None] * len(seeds))
 
     def _build(self, online: torch.Tensor, target: torch.Tensor, adam_states: list[dict[str, Any] | None]) -> None:

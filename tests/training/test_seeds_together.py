@@ -3,6 +3,7 @@ exactly itself, and a run of several seeds lays each out as a one-seed run does.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -95,6 +96,45 @@ def test_each_seed_of_a_stack_updates_as_it_would_alone(seeds):
         assert loss == pytest.approx(losses[k].item(), rel=1e-5)
         assert relative(learner.gradients[k], flat(alone.model, grads=True)) < 1e-5
         assert relative(learner.weights[k], flat(alone.model)) < 1e-5
+
+
+def test_a_stack_of_several_seeds_lies_whole_on_its_device():
+    # The meta device stands in for a GPU here: a stack built on another device than the CPU
+    # must move every seed's weights there, not the first seed's alone.
+    config = tiny()
+    learner = Learner(config.network, dataclasses.replace(config.learner, device="meta"), [1, 2, 3])
+    tensors = [learner.weights, learner.target_weights, learner.gradients, *learner.template.parameters()]
+    assert {tensor.device.type for tensor in tensors} == {"meta"}
+
+
+needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (a device machine: scripts/device-grid.sh runs these first)")
+
+
+@pytest.mark.cuda
+@needs_cuda
+@pytest.mark.parametrize("seeds", [1, 3])
+def test_on_a_gpu_each_seed_of_a_stack_updates_as_on_the_cpu(seeds):
+    config = tiny(max_grad_norm=0.05, learning_rate=1e-3)
+    buffer = small_buffer(config)
+    weights = []
+    for device in ("cpu", "cuda"):
+        learner = Learner(config.network, dataclasses.replace(config.learner, device=device), list(range(1, seeds + 1)))
+        rng = np.random.default_rng(1)
+        for _ in range(2):
+            learner.update([buffer.sample(32, rng) for _ in range(seeds)])
+        weights.append(learner.weights.cpu())
+    assert relative(weights[1], weights[0]) < 1e-4
+
+
+@pytest.mark.cuda
+@needs_cuda
+def test_on_a_gpu_seeds_trained_together_checkpoint_and_resume(tmp_path):
+    runs = [SeedRun(seed, tmp_path / f"seed-{seed}") for seed in (1, 2)]
+    train_seeds(run_config(device="cuda"), runs, show_progress=False)
+    resumed = [SeedRun(run.seed, run.out_dir, run.out_dir) for run in runs]
+    counters = train_seeds(run_config(device="cuda", total_steps=400), resumed, show_progress=False)
+    assert {seed: c.env_step for seed, c in counters.items()} == {1: 400, 2: 400}
+    assert all((run.out_dir / "best" / "state.json").is_file() for run in runs)
 
 
 def test_a_seeds_networks_start_as_a_one_seed_run_of_that_seed_draws_them():
