@@ -89,6 +89,13 @@ BEST_FOLDER = "best"
 """Subfolder of the run holding the best snapshot so far, as a checkpoint."""
 SNAPSHOTS_FOLDER = "snapshots"
 """Subfolder of the run holding every snapshot's online network by environment step (RunConfig.keep_snapshots)."""
+
+
+def snapshot_folder(run: Path, env_step: int) -> Path:
+    """Where a run keeps its snapshot of environment step `env_step`: RUN/snapshots/<step>/."""
+    return run / SNAPSHOTS_FOLDER / str(env_step)
+
+
 RECENT_EPISODES = 100
 """Finished episodes behind the success rate and mean return of the progress line and log."""
 PROGRESS_SECONDS = 1.0
@@ -527,7 +534,7 @@ class SeedState:
         record, better = take_snapshot(model, self.groups[0].scenario, run, counters.best_score)
         write_record(self.log_path, {**record, "env_step": counters.env_step})
         if run.keep_snapshots:
-            save_snapshot(self.out_dir / SNAPSHOTS_FOLDER / str(counters.env_step), self.config, model, counters)
+            save_snapshot(snapshot_folder(self.out_dir, counters.env_step), self.config, model, counters)
         if better:
             counters.best_score, counters.best_step = record["score"], counters.env_step
             counters.replay_transitions = len(self.buffer)

@@ -85,7 +85,7 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
     from terl_rt.sim.scenario import Scenario, ScenarioError
     from training.curves import plot_snapshot_curves, stage_starts
     from training.snapshot_curves import picked_snapshot, run_seed, snapshot_curve, with_interval
-    from training.train import METRICS_FILE, SNAPSHOTS_FOLDER
+    from training.train import METRICS_FILE, snapshot_folder
 
     if pick is not None and pick not in presets:
         presets = (*presets, pick)
@@ -119,7 +119,7 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
                 )
         for label, run in zip(labels, runs) if picks else ():
             step = picks[label]["env_step"]
-            click.echo(f"picked by {pick}: {label} at {step:,} ({run / SNAPSHOTS_FOLDER / str(step)})")
+            click.echo(f"picked by {pick}: {label} at {step:,} ({snapshot_folder(run, step)})")
     if output is not None:
         stages = stage_starts([run / METRICS_FILE for run in runs])
         click.echo(f"{plot_snapshot_curves(curves, output, title, stages)}: learning curves of {len(runs)} runs", err=True)
