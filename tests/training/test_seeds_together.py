@@ -107,7 +107,8 @@ def test_a_stack_of_several_seeds_lies_whole_on_its_device():
     assert {tensor.device.type for tensor in tensors} == {"meta"}
 
 
-needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (a device machine: scripts/device-grid.sh runs these first)")
+needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(),
+                                reason="needs a CUDA GPU (a device machine: scripts/device-grid.sh runs these first)")
 
 
 @pytest.mark.cuda
