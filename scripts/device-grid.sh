@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The prepared device-machine command (docs/training.md, "On a device machine"): one call of under
+# The prepared device-machine command (docs/training.md, "Speed"): one call of under
 # 9 minutes that trains grid cells with their learners on the GPU, the seeds of a method trained
 # together in one process (SEEDS_PER_PROCESS, default 3: one batched update on the GPU serves
 # them all; rollouts on the CPU cores, one process a stack), and brings back each method's resume

@@ -83,7 +83,7 @@ class LearnerConfig:
     actor_update_frequency: int = 0
     """0: the online network acts, changing with every update (the published setting). K > 0: a
     copy of it acts, refreshed every K environment steps (and at a resume), so the data come
-    from one fixed network K steps at a time (docs/training.md, "the acting network"). A resume
+    from one fixed network K steps at a time (docs/training.md, "What mattered", 9). A resume
     continues bit for bit when the run's checkpoint_frequency is a multiple of K."""
     num_quantiles: int = 8
     """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
