@@ -49,10 +49,12 @@ def test_shipped_policy_acts_on_every_evader_slot_count(path):
 
 @pytest.mark.parametrize("path", SHIPPED, ids=IDS)
 def test_shipped_policy_is_named_after_its_model(path):
-    """exported/[comparison/]<model>.onnx, or a grid's <model>-seed-<S>.onnx tagged with its method and
-    seed: the report and the comparison name a method by terl.model (and a seed by terl.seed)."""
+    """exported/[comparison/]<model>.onnx names its model (terl.model); a grid's <method>-seed-<S>.onnx
+    is tagged with its method and seed, by which the report and the comparison name it (terl.method,
+    terl.seed): a method's network may be another's (terl-authors trains the terl network)."""
     policy = OnnxPolicy(path, threads=1)
     seed = grid_seed(path)
     if seed:
         assert (policy.metadata.get("terl.method"), policy.metadata.get("terl.seed")) == seed
-    assert policy.name == (seed[0] if seed else path.stem)
+    else:
+        assert policy.name == path.stem
