@@ -5,9 +5,9 @@
 # them all; rollouts on the CPU cores, one process a stack), and brings back each method's resume
 # points in $OUT. From the repository root, on the device machine:
 #
-#   cp -r checkpoints/authors runs/authors && GRID_OUT=runs/authors SEEDS_PER_PROCESS=2 \
-#       scripts/device-grid.sh 8 recipes/terl-authors.toml --seeds 1,2
-#   cp -r checkpoints/comparison runs/comparison && scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
+#   cp -r checkpoints/GRID runs/GRID && GRID_OUT=runs/GRID SEEDS_PER_PROCESS=2 \
+#       scripts/device-grid.sh 8 RECIPE --seeds 1,2
+#   scripts/device-grid.sh 8 recipes/comparison/*.toml --seeds 1-3
 #
 # (the cp where the grid has committed resume points: scripts/keep-cells.py; seeds trained
 # together resume from one step, so the stacks are those the resume points were trained in).
