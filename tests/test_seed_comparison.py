@@ -86,6 +86,8 @@ def test_method_and_seed_come_from_terl_method_and_terl_seed():
 def test_a_file_without_them_is_its_models_method_with_its_training_configs_seed():
     metadata = {"terl.model": "iqn", "terl.training_config": json.dumps({"seed": 7, "batch_size": 128})}
     assert policy_identity(metadata) == ("IQN", 7)
+    nested = {"terl.model": "terl", "terl.training_config": json.dumps({"run": {"seed": 2}, "learner": {}})}
+    assert policy_identity(nested) == ("TERL", 2)
     assert policy_identity({"terl.model": "dqn"}) == ("DQN", None)
 
 

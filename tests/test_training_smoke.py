@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from terl_rt import Scenario, Simulator
+from terl_rt.paper.seed_comparison import policy_identity
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
 from training.checkpoint import load_network, read_counters
@@ -46,6 +47,8 @@ def test_train_resume_export_and_act_end_to_end(tmp_path):
     assert main(["export", str(out), "-o", str(onnx_path)]) == 0
     policy = OnnxPolicy(onnx_path)
     assert policy.metadata["terl.training_steps"] == "400"
+    # exported without --seed, its run's seed still tells it apart from the method's other seeds in a report
+    assert policy_identity(policy.metadata) == ("TERL", smoke_config().run.seed)
     simulator = Simulator(Scenario.preset("small-11"), seed=0)
     actions = policy.act(simulator.reset())
     assert actions.shape == (11,) and np.all((actions >= 0) & (actions < 9))

@@ -74,8 +74,9 @@ def method_stem(metadata: Mapping[str, str]) -> str:
 def policy_identity(metadata: Mapping[str, str], terl: str = DEFAULT_TERL) -> tuple[str, int | None]:
     """(the paper's method name, training seed or None) of a policy's metadata: the method
     `method_name` gives its `method_stem` (`terl`: the stem that stands for TERL); the seed
-    from `terl.seed`, else the "seed" of `terl.training_config`'s JSON. ValueError when
-    terl.seed is not an integer."""
+    from `terl.seed`, else that of `terl.training_config`'s JSON: its "run" section's "seed"
+    (the config as `training` writes it), or a "seed" at the top (the flat config of the first
+    exports). ValueError when terl.seed is not an integer."""
     method = method_name(method_stem(metadata), terl)
     if META_SEED in metadata:
         try:
@@ -83,7 +84,9 @@ def policy_identity(metadata: Mapping[str, str], terl: str = DEFAULT_TERL) -> tu
         except ValueError:
             raise ValueError(f"metadata '{META_SEED}' is {metadata[META_SEED]!r}, expected an integer") from None
     try:
-        seed = json.loads(metadata.get(META_TRAINING_CONFIG, "{}")).get("seed")
+        config = json.loads(metadata.get(META_TRAINING_CONFIG, "{}"))
+        run = config.get("run")
+        seed = run.get("seed") if isinstance(run, dict) else config.get("seed")
     except (ValueError, AttributeError):
         seed = None
     return method, seed if isinstance(seed, int) and not isinstance(seed, bool) else None
