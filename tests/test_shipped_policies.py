@@ -48,7 +48,7 @@ def test_shipped_policy_acts_on_every_evader_slot_count(path):
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=IDS)
-def test_shipped_policy_is_named_after_its_model(path):
+def test_shipped_policy_is_named_by_its_model_or_its_grid_method_and_seed(path):
     """exported/[comparison/]<model>.onnx names its model (terl.model); a grid's <method>-seed-<S>.onnx
     is tagged with its method and seed, by which the report and the comparison name it (terl.method,
     terl.seed): a method's network may be another's (terl-authors trains the terl network)."""
