@@ -22,6 +22,27 @@ segment's network, optimizer, counters and replay buffer (a fine-tune when it ch
     curriculum = false
     scenario = "medium-48"
 
+A recipe that continues a start names the step its steps are counted from, `from_step`; its
+first segment continues the start (`python -m training run RECIPE --start START`: a checkpoint,
+a snapshot or an exported policy, training.start), and a start at another step shifts every
+step of the recipe (the segments' ends, `decay_start`, the curriculum's `curriculum_steps`) by
+the difference. The start's network (body and sizes) replaces the recipe's in every segment:
+
+    from_step = 200_000             # recipes/scale-fine-tune.toml: the default's fine-tune at scale
+    [[segment]]
+    name = "published"
+    steps = 300_000                 # 100 k steps after its start, wherever that is
+    refill = true
+
+A recipe may chain others instead: the first K segments of one, then the segments of one that
+continues a start, shifted to begin where the first ends (`recipes/terl.toml`):
+
+    [[chain]]
+    recipe = "terl-paper.toml"      # a path from this recipe's folder
+    segments = 1                    # its first segment only (default: all)
+    [[chain]]
+    recipe = "scale-fine-tune.toml"
+
 A recipe may instead extend another (a path relative to its own folder) and change fields in
 every segment of it: its parts' fields replace the base's in each segment, over the base's own
 values; the segments, their names, steps and starts are the base's. It names the file it ships;
@@ -44,6 +65,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import os
 import shutil
 import sys
 from contextlib import ExitStack
@@ -57,18 +79,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from training.checkpoint import STATE_FILE, export_checkpoint, read_counters
-from training.config import SECTIONS, Config, ConfigError, read_fields
+from training.checkpoint import STATE_FILE, export_checkpoint, read_config, read_counters
+from training.config import SECTIONS, Config, ConfigError, NetworkConfig, read_fields
 from training.run_lock import holding_run_folder
+from training.start import START_FOLDER, StartError, place_start, seed_start
 from training.train import BEST_FOLDER, SeedRun
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
 """The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""
 STARTS = ("last", "best")
 """What a later segment continues: the previous segment's last checkpoint or its best snapshot."""
-RECIPE_KEYS = ("ships", "ships_from", "segment")
+RECIPE_KEYS = ("ships", "ships_from", "from_step", "start", "segment")
 """The top-level keys of a recipe of segments."""
-EXTENSION_KEYS = ("extends", "ships", "ships_from", *SECTIONS)
+CHAIN_KEYS = ("ships", "ships_from", "chain")
+"""The top-level keys of a recipe that chains others."""
+LINK_KEYS = ("recipe", "segments")
+"""The keys of one [[chain]] entry."""
+NETWORK_SHAPE = ("model", "hidden", "layers", "heads")
+"""The network fields a start (or a chain's first recipe) gives every later segment."""
+EXTENSION_KEYS = ("extends", "ships", "ships_from", "start", *SECTIONS)
 """The top-level keys of a recipe that extends another."""
 
 
@@ -100,6 +129,37 @@ class Recipe:
     ships_from: str
     """"best" or "last": which checkpoint of the last segment is exported."""
     segments: tuple[Segment, ...]
+    from_step: int | None = None
+    """the step the segments' steps count from, for a recipe that continues a start; None: it
+    starts from nothing."""
+    start: str | None = None
+    """the start it continues unless the command names one (a path from the recipe's folder,
+    "{seed}" standing for each seed's number); None: the command must name it."""
+
+    def shifted(self, step: int) -> Recipe:
+        """The recipe continuing a start at environment step `step`: every step of its segments
+        (their ends, decay_start, curriculum_steps) moved by `step - from_step`."""
+        if self.from_step is None:
+            raise RecipeError(f"{self.path}: starts from nothing; it has no from_step to shift")
+        delta = step - self.from_step
+        if delta == 0:
+            return self
+        return dataclasses.replace(self, from_step=step, segments=tuple(
+            dataclasses.replace(segment, config=_shift_config(segment.config, delta)) for segment in self.segments
+        ))
+
+    def _checked_start(self) -> Recipe:
+        """Itself, or RecipeError for a start in a recipe that starts from nothing."""
+        if self.start is not None and self.from_step is None:
+            raise RecipeError(f"{self.path}: 'start' belongs to a recipe that continues one (with from_step)")
+        return self
+
+    def with_network(self, network: NetworkConfig) -> Recipe:
+        """The recipe with `network`'s body and sizes (NETWORK_SHAPE) in every segment."""
+        shape = {name: getattr(network, name) for name in NETWORK_SHAPE}
+        return dataclasses.replace(self, segments=tuple(
+            dataclasses.replace(segment, config=segment.config.replace(**shape)) for segment in self.segments
+        ))
 
     @property
     def sha256(self) -> str:
@@ -128,7 +188,7 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
         raise FileNotFoundError(f"{path}: no such recipe") from None
     except tomllib.TOMLDecodeError as error:
         raise RecipeError(f"{path}: not valid TOML: {error}") from None
-    known = EXTENSION_KEYS if "extends" in data else RECIPE_KEYS
+    known = EXTENSION_KEYS if "extends" in data else CHAIN_KEYS if "chain" in data else RECIPE_KEYS
     unknown = sorted(set(data) - set(known))
     if unknown:
         raise RecipeError(f"{path}: unknown key '{unknown[0]}' (known: {', '.join(known)})")
@@ -137,8 +197,17 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     ships_from = data.get("ships_from", "best")
     if ships_from not in STARTS:
         raise RecipeError(f"{path}: 'ships_from' must be one of {', '.join(STARTS)}, got {ships_from!r}")
+    start = data.get("start")
+    if start is not None and not isinstance(start, str):
+        raise RecipeError(f"{path}: 'start' must be the path of a checkpoint, snapshot or .onnx policy, got {start!r}")
+    start = None if start is None else os.path.normpath(path.parent / start)
     if "extends" in data:
-        return _extension(path, data, _extending)
+        return dataclasses.replace(_extension(path, data, _extending), **({} if start is None else {"start": start}))._checked_start()
+    if "chain" in data:
+        return _chain(path, data, _extending)
+    from_step = data.get("from_step")
+    if from_step is not None and (isinstance(from_step, bool) or not isinstance(from_step, int) or from_step < 0):
+        raise RecipeError(f"{path}: 'from_step' must be the environment step its steps count from, got {from_step!r}")
     tables = data.get("segment")
     if not isinstance(tables, list) or not tables:
         raise RecipeError(f"{path}: no [[segment]]; a recipe is one or more segments (or 'extends' another)")
@@ -146,13 +215,62 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     config = Config()
     for index, table in enumerate(tables, start=1):
         where = f"{path}: segment {index} ({table.get('name', 'unnamed')})"
-        segment = _segment(table, config, previous=segments[-1] if segments else None, where=where)
+        segment = _segment(table, config, previous=segments[-1] if segments else None, where=where, from_step=from_step)
         segments.append(segment)
         config = segment.config
     names = [segment.name for segment in segments]
     if len(set(names)) != len(names):
         raise RecipeError(f"{path}: two segments share a name in {names}")
-    return Recipe(path, data["ships"], ships_from, tuple(segments))
+    return Recipe(path, data["ships"], ships_from, tuple(segments), from_step, start)._checked_start()
+
+
+def _shift_config(config: Config, delta: int) -> Config:
+    """`config` with its steps moved by `delta`: the end, the step size's decay start (when it
+    decays) and the curriculum's length (when it walks one)."""
+    learner, schedule = config.learner, config.schedule
+    changes: dict[str, Any] = {"total_steps": schedule.total_steps + delta}
+    if learner.final_learning_rate:
+        changes["decay_start"] = learner.decay_start + delta
+    if schedule.curriculum:
+        changes["curriculum_steps"] = (schedule.curriculum_steps or schedule.total_steps) + delta
+    return config.replace(**changes)
+
+
+def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Recipe:
+    """The recipe `data` of file `path` chains: each link's segments (its first `segments`), every
+    link after the first continuing where the one before ends, with the first link's network."""
+    links = data["chain"]
+    if not isinstance(links, list) or not links:
+        raise RecipeError(f"{path}: 'chain' must be one or more [[chain]] tables")
+    segments: list[Segment] = []
+    first: Recipe | None = None
+    for number, link in enumerate(links, start=1):
+        where = f"{path}: chain {number}"
+        unknown = sorted(set(link) - set(LINK_KEYS)) if isinstance(link, dict) else []
+        if not isinstance(link, dict) or not isinstance(link.get("recipe"), str) or unknown:
+            raise RecipeError(f"{where}: a link is a table of {', '.join(LINK_KEYS)} with 'recipe' a path, got {link!r}")
+        link_path = path.parent / link["recipe"]
+        if link_path.resolve() in extending + (path.resolve(),):
+            raise RecipeError(f"{where}: 'recipe' makes a loop through {link_path}")
+        try:
+            part = load_recipe(link_path, extending + (path.resolve(),))
+        except FileNotFoundError:
+            raise RecipeError(f"{where}: 'recipe' names {link_path}, which does not exist") from None
+        count = link.get("segments", len(part.segments))
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= len(part.segments):
+            raise RecipeError(f"{where}: 'segments' must be 1-{len(part.segments)} ({link_path} has "
+                              f"{len(part.segments)}), got {count!r}")
+        if first is None:
+            first = part
+        else:
+            if part.from_step is None:
+                raise RecipeError(f"{where}: {link_path} starts from nothing (no from_step); only the first link may")
+            part = part.shifted(segments[-1].config.schedule.total_steps).with_network(first.segments[0].config.network)
+        segments.extend(part.segments[:count])
+    names = [segment.name for segment in segments]
+    if len(set(names)) != len(names):
+        raise RecipeError(f"{path}: two segments of the chain share a name in {names}")
+    return Recipe(path, data["ships"], data.get("ships_from", "best"), tuple(segments), first.from_step)
 
 
 def _extension(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Recipe:
@@ -176,10 +294,12 @@ def _extension(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) ->
         except ConfigError as error:
             raise RecipeError(f"{path}: in segment {index} ({segment.name}) of {base_path}: {error}") from None
         segments.append(dataclasses.replace(segment, config=config))
-    return Recipe(path, data["ships"], data.get("ships_from", base.ships_from), tuple(segments))
+    return Recipe(path, data["ships"], data.get("ships_from", base.ships_from), tuple(segments), base.from_step,
+                  base.start)
 
 
-def _segment(table: dict[str, Any], base: Config, previous: Segment | None, where: str) -> Segment:
+def _segment(table: dict[str, Any], base: Config, previous: Segment | None, where: str,
+             from_step: int | None = None) -> Segment:
     unknown = sorted(set(table) - set(SEGMENT_KEYS))
     if unknown:
         raise RecipeError(f"{where}: unknown key '{unknown[0]}' (known: {', '.join(SEGMENT_KEYS)})")
@@ -192,14 +312,18 @@ def _segment(table: dict[str, Any], base: Config, previous: Segment | None, wher
         raise RecipeError(
             f"{where}: 'steps' {steps} must lie past the previous segment's end, {previous.config.schedule.total_steps}"
         )
+    if previous is None and from_step is not None and steps <= from_step:
+        raise RecipeError(f"{where}: 'steps' {steps} must lie past the recipe's from_step, {from_step}")
     start = table.get("start", "last")
     if start not in STARTS:
         raise RecipeError(f"{where}: 'start' must be one of {', '.join(STARTS)}, got {start!r}")
     refill = table.get("refill", False)
     if not isinstance(refill, bool):
         raise RecipeError(f"{where}: 'refill' must be true or false, got {refill!r}")
-    if previous is None and ("start" in table or "refill" in table):
+    if previous is None and from_step is None and ("start" in table or "refill" in table):
         raise RecipeError(f"{where}: the first segment starts from nothing; 'start' and 'refill' belong to later ones")
+    if previous is None and start != "last":
+        raise RecipeError(f"{where}: the first segment continues its start itself; 'start' belongs to later segments")
     changes = {section: table[section] for section in SECTIONS if section in table}
     for section, fields in changes.items():
         if "total_steps" in fields:
@@ -222,8 +346,19 @@ def finished(folder: Path, segment: Segment) -> bool:
     return (folder / STATE_FILE).is_file() and read_counters(folder).env_step >= segment.config.schedule.total_steps
 
 
+def continuing(recipe: Recipe, out: Path) -> Recipe:
+    """`recipe` as the run in `out` (a seed's folder) trains it: shifted to its start's step and
+    with its start's network when it continues a start laid down there (training.start), else as
+    it is."""
+    start = Path(out) / START_FOLDER
+    if recipe.from_step is None or not (start / STATE_FILE).is_file():
+        return recipe
+    return recipe.shifted(read_counters(start).env_step).with_network(read_config(start).network)
+
+
 def recipe_finished(recipe: Recipe, out: Path) -> bool:
     """Whether every segment of `recipe` under `out` has ended and its policy is exported."""
+    recipe = continuing(recipe, out)
     done = all(finished(segment_folder(out, k, segment), segment) for k, segment in enumerate(recipe.segments, start=1))
     return done and (out / Path(recipe.ships).name).is_file()
 
@@ -233,6 +368,7 @@ def shipped_checkpoint(recipe: Recipe, out: Path) -> Path:
     (`ships_from = "last"`), else the run's best snapshot, the best/ of the segment that took it
     (a segment continues the best score of the one before it, so a segment that never beat it
     has no best/ of its own)."""
+    recipe = continuing(recipe, out)
     last = segment_folder(out, len(recipe.segments), recipe.segments[-1])
     if recipe.ships_from == "last":
         return last
@@ -262,7 +398,7 @@ def seed_folders(out: Path, seeds: Sequence[int] | None, seed: int | None, recip
 def run_recipe(
     recipe: Recipe, out: str | Path, train: TrainSeeds, threads: int | None = None, seed: int | None = None,
     seeds: Sequence[int] | None = None, device: str | None = None, segments: int | None = None, show_progress: bool = True,
-    note: Callable[[str], None] = print,
+    note: Callable[[str], None] = print, start: str | None = None,
 ) -> list[Path]:
     """Train every segment of `recipe` not yet finished under `out`, then export the policy it
     ships; returns the .onnx paths (OUT/<stem of ships>.onnx, or with `seeds`
@@ -279,15 +415,27 @@ def run_recipe(
     RecipeError names it once the others are done. `segments` trains the first so many segments
     only (nothing is exported unless they are all of them). The run holds each seed's folder
     throughout (training.run_lock): another run on one raises RunFolderHeld before anything is written.
+
+    `start` (a recipe with from_step only, which needs one; default its own `start`) is what the first segment continues:
+    a checkpoint, snapshot or .onnx policy (training.start), "{seed}" in it replaced by each
+    seed's number; it is laid down in each seed's OUT/0-start/ and the recipe shifted to its step.
     """
     out = Path(out)
     folders = seed_folders(out, seeds, seed, recipe)
+    start = start if start is not None else recipe.start
+    if recipe.from_step is not None and start is None:
+        raise RecipeError(f"{recipe.path} continues a start (from_step {recipe.from_step:,}): give --start "
+                          "CHECKPOINT, SNAPSHOT or POLICY.onnx (\"{seed}\" in it for each seed's own)")
+    if recipe.from_step is None and start is not None:
+        raise RecipeError(f"{recipe.path} starts from nothing (no from_step), so it takes no --start")
     overrides = {name: value for name, value in (("threads", threads), ("device", device)) if value is not None}
-    chosen = recipe.segments[:segments] if segments else recipe.segments
     with ExitStack() as held:
         for folder in folders.values():  # each seed's folder, so stacks of other seeds of a grid may share OUT
             held.enter_context(holding_run_folder(folder))
-        done = train_segments(recipe, chosen, folders, train, overrides, show_progress, note)
+        if start is not None:
+            recipe = _placed_start(recipe, start, folders)
+        chosen = recipe.segments[:segments] if segments else recipe.segments
+        done = train_segments(recipe, chosen, folders, train, overrides, show_progress, note, started=start is not None)
         failed = sorted(set(folders) - set(done))
         shipped = [] if len(chosen) < len(recipe.segments) else [
             export_checkpoint(shipped_checkpoint(recipe, folders[number]), folders[number] / Path(recipe.ships).name)
@@ -299,12 +447,30 @@ def run_recipe(
     return shipped
 
 
+def _placed_start(recipe: Recipe, start: str, folders: dict[int, Path]) -> Recipe:
+    """Lay down each seed's start in its START_FOLDER; the recipe shifted to their one step, with their network."""
+    steps = {}
+    for number, folder in folders.items():
+        try:
+            steps[number] = place_start(seed_start(start, number), folder / START_FOLDER, number).env_step
+        except StartError as error:
+            raise RecipeError(f"--start of seed {number}: {error}") from None
+    if len(set(steps.values())) > 1:
+        raise RecipeError(f"seeds trained together start from one step; their starts are at "
+                          f"{', '.join(f'seed {n}: {s:,}' for n, s in steps.items())}: run them apart (--seed S)")
+    shapes = {number: read_config(folders[number] / START_FOLDER).network for number in folders}
+    if len({tuple(getattr(network, name) for name in NETWORK_SHAPE) for network in shapes.values()}) > 1:
+        raise RecipeError(f"seeds trained together share one network; their starts have {shapes}: run them apart")
+    return continuing(recipe, next(iter(folders.values())))
+
+
 def train_segments(recipe: Recipe, segments: Sequence[Segment], folders: dict[int, Path], train: TrainSeeds,
-                   overrides: dict[str, int], show_progress: bool, note: Callable[[str], None]) -> list[int]:
+                   overrides: dict[str, int], show_progress: bool, note: Callable[[str], None],
+                   started: bool = False) -> list[int]:
     """`run_recipe`'s training: each segment finished, resumed or started in turn for every seed
     (folders: seed -> its run folder), with the run fields `overrides` replaced in every segment's
     config. Seeds that continue from one environment step train together; returns the seeds that
-    finished every segment."""
+    finished every segment. `started`: the first segment continues each seed's START_FOLDER."""
     alive = list(folders)
     for index, segment in enumerate(segments, start=1):
         config = segment.config.replace(**overrides)
@@ -322,8 +488,11 @@ def train_segments(recipe: Recipe, segments: Sequence[Segment], folders: dict[in
             else:
                 if folder.exists():
                     shutil.rmtree(folder)
-                previous = segment_folder(folders[number], index - 1, recipe.segments[index - 2]) if index > 1 else None
-                source = None if previous is None else (previous / BEST_FOLDER if segment.start == "best" else previous)
+                if index > 1:
+                    previous = segment_folder(folders[number], index - 1, recipe.segments[index - 2])
+                    source = previous / BEST_FOLDER if segment.start == "best" else previous
+                else:
+                    source = folders[number] / START_FOLDER if started else None
                 note(f"{named}: starting" + ("" if source is None else f" from {source}"))
                 load_replay = not segment.refill
             # seeds that continue from one step train together (a missing checkpoint is train's to name)

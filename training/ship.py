@@ -16,10 +16,11 @@ from typing import Any
 from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_METHOD, META_SEED
 from training.card import PAPER_NAMES, model_lines, recipe_line, settings, snapshot_row, weights_line
-from training.checkpoint import Counters, export_checkpoint, network_from_config, read_counters
+from training.checkpoint import Counters, export_checkpoint, network_from_config, read_config, read_counters
 from training.curves import plot_seed_curves, read_metrics
 from training.grid import Cell
-from training.recipe import Recipe, recipe_finished, segment_folder, shipped_checkpoint
+from training.recipe import Recipe, continuing, recipe_finished, segment_folder, shipped_checkpoint
+from training.start import START_FOLDER, read_start
 from training.train import METRICS_FILE
 
 
@@ -71,7 +72,7 @@ def method_card(
     """The markdown card of one method of a grid: its recipe, every seed's weights, the network,
     the settings, the recipe's notes (`Recipe.notes`: where it follows the paper or differs), and
     a row per seed (a seed not shipped says so and names its log)."""
-    recipe = seeds[0][1]
+    recipe = continuing(seeds[0][1], seeds[0][0].out)
     config = recipe.segments[-1].config
     name = PAPER_NAMES.get(config.network.model, config.network.model)
     card_folder = figure.parent
@@ -94,6 +95,7 @@ def method_card(
         f"- {settings(config)}; on {machine}.",
         "- Segments: " + ", ".join(f"{s.name} to {s.config.schedule.total_steps:,} steps" for s in recipe.segments)
         + ".",
+        *start_lines(seeds),
         shipped_line(recipe),
         "",
         *(["## The recipe's notes", "", "```text", *recipe.notes, "```", ""] if recipe.notes else []),
@@ -108,6 +110,25 @@ def method_card(
         "",
     ]
     return "\n".join(lines)
+
+
+def start_lines(seeds: Sequence[tuple[Cell, Recipe]]) -> list[str]:
+    """The card's line on what the seeds continue, for a recipe that continues a start: each
+    seed's start (training.start: its source, what it is, its network and step count)."""
+    starts = {cell.seed: (read_start(cell.out), cell.out / START_FOLDER) for cell, _ in seeds}
+    if not any(record for record, _ in starts.values()):
+        return []
+    described = []
+    for seed, (record, folder) in starts.items():
+        if record is None:
+            described.append(f"seed {seed}: not laid down yet")
+            continue
+        network = read_config(folder).network
+        size = f"H = {network.hidden}" + (f", L = {network.layers}" if network.layers else "")
+        described.append(f"seed {seed}: `{record['source']}` (a {record['kind']}, `{network.model}` {size}, "
+                         f"{record['env_step']:,} steps)")
+    return ["- Start: each seed continues its own, its network and step count carried (the segments' steps "
+            "move with it): " + "; ".join(described) + "."]
 
 
 def shipped_line(recipe: Recipe) -> str:

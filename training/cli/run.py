@@ -28,9 +28,13 @@ from training.config import ConfigError
                    "rollouts stay on the CPU.")
 @click.option("--segments", type=click.IntRange(min=1), metavar="K",
               help="Train the first K segments only (nothing is exported unless K covers the recipe).")
+@click.option("--start", metavar="START",
+              help="What a recipe with from_step (recipes/scale-fine-tune.toml) continues: a checkpoint folder, a "
+                   "snapshot folder or an exported .onnx policy; with --seeds, \"{seed}\" in it stands for each "
+                   "seed's number. Its network and step carry into the run (laid down in DIR/0-start/).")
 @click.option("--quiet", is_flag=True, help="No progress line on stderr.")
 def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, seeds: list[int] | None,
-                device: str | None, segments: int | None, quiet: bool) -> None:
+                device: str | None, segments: int | None, start: str | None, quiet: bool) -> None:
     """Make the policy a recipe (recipes/*.toml) describes: train its segments in order, each
     continuing the one before, and export the policy it ships into DIR.
 
@@ -42,6 +46,9 @@ def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, 
       python -m training run recipes/terl.toml --out runs/terl
       python -m training run recipes/comparison/iqn.toml --out runs/iqn-seed-2 --seed 2
       python -m training run recipes/terl-paper.toml --out runs/paper --seeds 1-3 --segments 1
+      python -m training run recipes/scale-fine-tune.toml --start runs/paper/seed-1/1-curriculum --out runs/ft
+      python -m training run recipes/scale-fine-tune.toml --seeds 1-3 --out runs/ft3 \\
+          --start 'exported/comparison/terl-authors-seed-{seed}.onnx'
     """
     from training.recipe import load_recipe, run_recipe
     from training.train import train_seeds
@@ -51,7 +58,7 @@ def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, 
     plan = load_recipe(recipe)
     set_threads(threads or plan.segments[0].config.run.threads)
     paths = run_recipe(plan, out, train_seeds, threads=threads, seed=seed, seeds=seeds, device=device,
-                       segments=segments, show_progress=not quiet, note=click.echo)
+                       segments=segments, show_progress=not quiet, note=click.echo, start=start)
     for path in paths:
         digest = hashlib.sha256(path.read_bytes()).hexdigest()
         click.echo(f"{path}: {plan.ships} by {recipe}; sha256 {digest}")

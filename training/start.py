@@ -1,0 +1,149 @@
+"""A fine-tune's start: a checkpoint, a snapshot or an exported policy, laid down as the whole
+checkpoint that the first segment of a recipe with `from_step` continues (training.recipe).
+
+    python -m training run recipes/scale-fine-tune.toml --start runs/a/1-curriculum --out runs/b
+    python -m training run recipes/scale-fine-tune.toml --start exported/comparison/terl-authors-seed-1.onnx --out runs/c
+
+What a start is:
+- a checkpoint folder (state.json with RNG states): copied whole (weights, target, Adam
+  moments, counters, generators; not its replay buffer, which the first segment refills);
+- a snapshot folder (training.checkpoint.save_snapshot: the online network and its counters);
+- an exported policy (`.onnx`): its weights read back from the graph (training.onnx_weights),
+  its environment step from `terl.training_steps`, its config from `terl.training_config`.
+A snapshot or a policy holds no target network, optimizer or generators: the target starts as
+a copy of the online network, Adam starts with no moments, and the generators are seeded by
+the run's seed. Its best snapshot score is not carried (it was measured by another run).
+
+The start is written to OUT/0-start/ (OUT/seed-<S>/0-start/ for seeds trained together) with
+start.json beside it (what it came from, its kind and its weights' sha256), so the run names
+its start, the model card reads it, and a rerun of the same command finds it in place.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import random
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from terl_rt.files import atomic_output
+from terl_rt.policy.contract import (
+    META_HEADS, META_HIDDEN, META_LAYERS, META_MODEL, META_TRAINED_ON, META_TRAINING_STEPS,
+)
+from training.adam import one_seed_state_dict
+from training.checkpoint import (
+    CONFIG_FILE, META_TRAINING_CONFIG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TARGET_FILE, Counters,
+    TrainingState, load_network, read_config, save_checkpoint,
+)
+from training.config import Config
+
+START_FOLDER = "0-start"
+"""The folder of a run (or of a seed of it) that holds its start."""
+START_RECORD = "start.json"
+"""What the start came from: {"source", "kind", "sha256", "env_step"}."""
+CHECKPOINT_FILES = (MODEL_FILE, TARGET_FILE, OPTIMIZER_FILE, CONFIG_FILE, STATE_FILE)
+"""A whole checkpoint's files, state.json last (it marks the checkpoint complete)."""
+KINDS = ("checkpoint", "snapshot", "policy")
+
+
+class StartError(ValueError):
+    """A start that cannot be read; the message names the path and what is wrong."""
+
+
+def seed_start(start: str, seed: int) -> Path:
+    """The start of `seed`: `start` with every "{seed}" replaced by the seed's number."""
+    return Path(start.replace("{seed}", str(seed)))
+
+
+def start_kind(source: Path) -> str:
+    """"checkpoint", "snapshot" or "policy": what `source` is (StartError when none)."""
+    if source.suffix == ".onnx":
+        if not source.is_file():
+            raise StartError(f"{source}: no such policy file")
+        return "policy"
+    state_path = source / STATE_FILE
+    if not state_path.is_file():
+        raise StartError(f"{source}: not a checkpoint, snapshot or .onnx policy (no {STATE_FILE} in it)")
+    try:
+        state = json.loads(state_path.read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise StartError(f"{state_path}: unreadable ({error})") from None
+    return "checkpoint" if "rng" in state else "snapshot"
+
+
+def fresh_rng_states(seed: int) -> dict:
+    """The generator states of a run that starts at `seed` (training.checkpoint.rng_states' layout)."""
+    version, internal, gauss = random.Random(seed).getstate()
+    return {
+        "python": [version, list(internal), gauss],
+        "numpy": np.random.default_rng(seed).bit_generator.state,
+        "torch": torch.Generator().manual_seed(seed).get_state().tolist(),
+    }
+
+
+def _policy_weights(source: Path) -> tuple[torch.nn.Module, Config, Counters]:
+    """The network, config and counters an exported policy records."""
+    from training.onnx_weights import WeightsNotFound, network_from_onnx
+
+    try:
+        model, metadata = network_from_onnx(source)
+    except WeightsNotFound as error:
+        raise StartError(str(error)) from None
+    try:
+        config = Config.from_dict(json.loads(metadata[META_TRAINING_CONFIG]), source=str(source))
+    except KeyError:
+        config = Config()
+    config = config.replace(model=metadata[META_MODEL], hidden=int(metadata[META_HIDDEN]),
+                            layers=int(metadata[META_LAYERS]), heads=int(metadata[META_HEADS]))
+    trained_on = metadata.get(META_TRAINED_ON, "")
+    stages = [] if trained_on in ("", "untrained") else trained_on.replace("..", ",").split(",")
+    counters = Counters(env_step=int(metadata.get(META_TRAINING_STEPS, "0")), stages=stages)
+    return model, config, counters
+
+
+def place_start(source: Path, folder: Path, seed: int) -> Counters:
+    """Write the start `source` as a whole checkpoint into `folder` (START_FOLDER of a run) and
+    return its counters; a folder that already holds this start is left as it is."""
+    kind = start_kind(source)
+    weights = source if kind == "policy" else source / MODEL_FILE
+    digest = hashlib.sha256(weights.read_bytes()).hexdigest()
+    record_path = folder / START_RECORD
+    if record_path.is_file() and (folder / STATE_FILE).is_file():
+        record = json.loads(record_path.read_text())
+        if record.get("sha256") != digest:
+            raise StartError(f"{folder} holds another start ({record.get('source')}, sha256 {record.get('sha256')}), "
+                             f"not {source}: use another --out, or remove {folder}")
+        return Counters(**json.loads((folder / STATE_FILE).read_text())["counters"])
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    if kind == "checkpoint":
+        for name in CHECKPOINT_FILES:
+            shutil.copyfile(source / name, folder / name)
+        counters = Counters(**json.loads((folder / STATE_FILE).read_text())["counters"])
+    else:
+        if kind == "policy":
+            model, config, counters = _policy_weights(source)
+        else:
+            model, config, counters = load_network(source)
+            config = read_config(source)
+        counters = replace(counters, best_score=None, best_step=None, replay_transitions=0)
+        weights_now = model.state_dict()
+        optimizer = one_seed_state_dict(len(list(model.parameters())), config.learner.learning_rate)
+        save_checkpoint(folder, config, TrainingState(weights_now, weights_now, optimizer, counters,
+                                                      fresh_rng_states(seed)))
+    record = {"source": str(source), "kind": kind, "sha256": digest, "env_step": counters.env_step}
+    with atomic_output(record_path, replace=True) as temporary:
+        temporary.write_text(json.dumps(record, indent=2) + "\n")
+    return counters
+
+
+def read_start(run_folder: Path) -> dict | None:
+    """The start.json of a run folder's start, None for a run that started from nothing."""
+    path = Path(run_folder) / START_FOLDER / START_RECORD
+    return json.loads(path.read_text()) if path.is_file() else None
