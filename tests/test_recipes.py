@@ -263,6 +263,16 @@ def test_a_fine_tune_continues_a_checkpoint_a_snapshot_or_a_policy_at_its_step(t
     assert main(["run", str(FINE_TUNE), "--start", str(tiny_start[kind]), "--out", str(out), "--quiet"]) == 0
 
 
+def test_a_checkpoint_that_kept_its_model_alone_starts_as_a_snapshot(tmp_path, tiny_start):
+    from training.start import start_kind
+
+    kept = tmp_path / "best"  # scripts/keep-cells.py keeps a finished cell's best/ as model, config and state
+    kept.mkdir()
+    for name in ("model.safetensors", "config.json", "state.json"):
+        shutil.copyfile(tiny_start["checkpoint"] / name, kept / name)
+    assert (start_kind(tiny_start["checkpoint"]), start_kind(kept)) == ("checkpoint", "snapshot")
+
+
 def test_seeds_trained_together_each_continue_their_own_start(tmp_path, tiny_start):
     for seed in (1, 2):
         shutil.copyfile(tiny_start["policy"], tmp_path / f"start-{seed}.onnx")
@@ -370,3 +380,21 @@ def test_a_chain_shifts_its_later_links_to_where_the_first_ends(tmp_path):
         ("curriculum", 160), ("small", 260), ("mix", 300)]
     assert recipe.segments[2].config.learner.decay_start == 260
     assert {s.config.network.hidden for s in recipe.segments} == {16}  # the first link's network
+
+
+def test_a_grid_of_a_recipe_with_a_start_field_ships_cards_that_name_each_seeds_start(tmp_path, tiny_start):
+    recipes = tmp_path / "recipes"
+    recipes.mkdir()
+    shutil.copyfile(FINE_TUNE, recipes / "fine.toml")
+    for seed in (1, 2):
+        shutil.copyfile(tiny_start["policy"], tmp_path / f"start-{seed}.onnx")
+    (recipes / "tiny-ft.toml").write_text('extends = "fine.toml"\nships = "exported/tiny-ft.onnx"\n'
+                                          'start = "../start-{seed}.onnx"\n')
+    assert main(["grid", str(recipes / "tiny-ft.toml"), "--seeds", "1,2", "--out", str(tmp_path / "runs"),
+                 "--seeds-per-process", "2", "--ship", str(tmp_path / "exported")]) == 0
+    card = (tmp_path / "exported" / "tiny-ft.md").read_text()
+    assert "2 seeds of 240 environment steps" in card  # the start's 160 and the fine-tune's 80
+    assert f"seed 2: `{tmp_path / 'start-2.onnx'}` (a policy, `terl` H = 16, L = 1, 160 steps)" in card
+    from training.export import read_metadata
+
+    assert read_metadata(tmp_path / "exported" / "tiny-ft-seed-1.onnx")["terl.training_steps"] == "240"

@@ -202,7 +202,8 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
         raise RecipeError(f"{path}: 'start' must be the path of a checkpoint, snapshot or .onnx policy, got {start!r}")
     start = None if start is None else os.path.normpath(path.parent / start)
     if "extends" in data:
-        return dataclasses.replace(_extension(path, data, _extending), **({} if start is None else {"start": start}))._checked_start()
+        extension = _extension(path, data, _extending)
+        return (extension if start is None else dataclasses.replace(extension, start=start))._checked_start()
     if "chain" in data:
         return _chain(path, data, _extending)
     from_step = data.get("from_step")
@@ -416,9 +417,10 @@ def run_recipe(
     only (nothing is exported unless they are all of them). The run holds each seed's folder
     throughout (training.run_lock): another run on one raises RunFolderHeld before anything is written.
 
-    `start` (a recipe with from_step only, which needs one; default its own `start`) is what the first segment continues:
-    a checkpoint, snapshot or .onnx policy (training.start), "{seed}" in it replaced by each
-    seed's number; it is laid down in each seed's OUT/0-start/ and the recipe shifted to its step.
+    `start` is what the first segment of a recipe with from_step continues (default: the
+    recipe's own `start`; a recipe without from_step takes none): a checkpoint, snapshot or .onnx
+    policy (training.start), "{seed}" in it replaced by each seed's number. It is laid down in
+    each seed's OUT/0-start/ and the recipe shifted to its step, with its network.
     """
     out = Path(out)
     folders = seed_folders(out, seeds, seed, recipe)

@@ -7,7 +7,8 @@ checkpoint that the first segment of a recipe with `from_step` continues (traini
 What a start is:
 - a checkpoint folder (state.json with RNG states): copied whole (weights, target, Adam
   moments, counters, generators; not its replay buffer, which the first segment refills);
-- a snapshot folder (training.checkpoint.save_snapshot: the online network and its counters);
+- a snapshot folder (training.checkpoint.save_snapshot: the online network and its counters), or
+  a checkpoint folder that kept its online network alone (a committed best/);
 - an exported policy (`.onnx`): its weights read back from the graph (training.onnx_weights),
   its environment step from `terl.training_steps`, its config from `terl.training_config`.
 A snapshot or a policy holds no target network, optimizer or generators: the target starts as
@@ -38,7 +39,7 @@ from terl_rt.policy.contract import (
 from training.adam import one_seed_state_dict
 from training.checkpoint import (
     CONFIG_FILE, META_TRAINING_CONFIG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TARGET_FILE, Counters,
-    TrainingState, load_network, read_config, save_checkpoint,
+    TrainingState, load_network, save_checkpoint,
 )
 from training.config import Config
 
@@ -73,7 +74,9 @@ def start_kind(source: Path) -> str:
         state = json.loads(state_path.read_text())
     except (OSError, json.JSONDecodeError) as error:
         raise StartError(f"{state_path}: unreadable ({error})") from None
-    return "checkpoint" if "rng" in state else "snapshot"
+    # a checkpoint resumes: its generators and every file of it (a kept best/ may hold its model alone)
+    whole = "rng" in state and all((source / name).is_file() for name in CHECKPOINT_FILES)
+    return "checkpoint" if whole else "snapshot"
 
 
 def fresh_rng_states(seed: int) -> dict:
@@ -131,7 +134,6 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
             model, config, counters = _policy_weights(source)
         else:
             model, config, counters = load_network(source)
-            config = read_config(source)
         counters = replace(counters, best_score=None, best_step=None, replay_transitions=0)
         weights_now = model.state_dict()
         optimizer = one_seed_state_dict(len(list(model.parameters())), config.learner.learning_rate)
