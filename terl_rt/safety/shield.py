@@ -112,26 +112,41 @@ def _entities(observation: Observation, params: WorldParams) -> tuple[np.ndarray
 
 def safety_scores(observation: Observation, params: WorldParams, shield: Shield) -> np.ndarray:
     """[R, A] m: for each row of `observation` (leading shape [R]) and each first action, the
-    least, over the entities seen, of the predicted clearance less what it must keep (the
-    margin, or the present clearance when that is smaller); the action is kept when >= 0.
-    +inf for a pursuer that sees nothing."""
+    least, over the entities seen that could come within the margin in the horizon, of the
+    predicted clearance less what it must keep (the margin, or the present clearance when
+    that is smaller); the action is kept when >= 0. +inf for a pursuer near nothing."""
     horizon = shield.horizon_steps
-    forward = np.clip(observation.ego[:, 0].astype(np.float64), 0.0, params.pursuer_max_speed)
-    own = own_paths(forward, params, horizon)  # [R, A, H + 1]
-    position, velocity, radius, present = _entities(observation, params)
+    rows = len(observation.ego)
     times = np.arange(horizon + 1) * (params.dt * params.substeps)  # s, [H + 1]
-    others = position[:, :, None] + velocity[:, :, None] * times  # [R, S, H + 1]
-    relative = others[:, None] - own[:, :, None]  # [R, A, S, H + 1]
+    position, velocity, radius, present = _entities(observation, params)
+    reach = params.robot_radius + radius  # [R, S] m: centre distance of contact
+    distance = np.abs(position)
+    keep = np.minimum(shield.margin_m, distance - reach)  # [R, S] m
+    # Only entities that could come within `keep` count: neither moves faster than its speed
+    # (the pursuer: s_max) for the horizon. The rest cannot make an action unsafe; leaving
+    # them out spares most of the work (far evaders fill most slots).
+    travel = (params.pursuer_max_speed + np.abs(velocity)) * times[-1]
+    row, slot = np.nonzero(present & (distance - travel - reach < keep))
+    scores = np.full((rows, NUM_PURSUER_ACTIONS), np.inf)
+    if not len(row):
+        return scores
+    # The pairs come row by row (np.nonzero's order): `first` starts each row's run.
+    first = np.flatnonzero(np.r_[True, row[1:] != row[:-1]])
+    deciding = row[first]  # the rows with a close pair, ascending
+    forward = np.clip(observation.ego[deciding, 0].astype(np.float64), 0.0, params.pursuer_max_speed)
+    pairs_of = np.diff(np.r_[first, len(row)])  # pairs of each deciding row
+    own = np.repeat(own_paths(forward, params, horizon), pairs_of, axis=0)  # [K, A, H + 1] for the K pairs
+    others = position[row, slot, None] + velocity[row, slot, None] * times  # [K, H + 1]
+    relative = others[:, None] - own  # [K, A, H + 1]
     start, change = relative[..., :-1], np.diff(relative, axis=-1)  # each decision step as a segment
     # The closest approach on each segment: u* = -Re(start conj(change)) / |change|^2 in [0, 1].
     squared = (change * change.conj()).real
     along = -(start * change.conj()).real
     u = np.clip(np.divide(along, squared, out=np.zeros_like(along), where=squared > 0), 0.0, 1.0)
-    closest = np.abs(start + u * change).min(axis=-1)  # [R, A, S] m
-    reach = params.robot_radius + radius  # [R, S] m
-    keep = np.minimum(shield.margin_m, np.abs(position) - reach)  # [R, S] m
-    scores = closest - reach[:, None] - keep[:, None]
-    return np.where(present[:, None], scores, np.inf).min(axis=-1, initial=np.inf)
+    closest = np.abs(start + u * change).min(axis=-1)  # [K, A] m
+    pair_scores = closest - (reach[row, slot] + keep[row, slot])[:, None]
+    scores[deciding] = np.minimum.reduceat(pair_scores, first, axis=0)  # the least of each row's pairs
+    return scores
 
 
 def shielded_actions(actions: np.ndarray, preference: np.ndarray | None, scores: np.ndarray) -> np.ndarray:
