@@ -18,7 +18,7 @@ from terl_rt.sim.params import WorldParams
 
 
 def test_cvar_keeps_the_lowest_alpha_share_of_32_quantiles():
-    assert (Risk.parse("cvar:0.25").kept, Risk.parse("cvar:1").kept, Risk.parse("cvar:0.01").kept) == (8, 32, 1)
+    assert (Risk.parse("cvar:0.25").kept(32), Risk.parse("cvar:1").kept(32), Risk.parse("cvar:0.01").kept(32)) == (8, 32, 1)
     # Quantiles 0..31 of one action, shuffled: CVaR at 0.25 is the mean of 0..7, 3.5.
     quantiles = np.zeros((1, 32, 9), np.float32)
     quantiles[0, :, 4] = np.random.default_rng(0).permutation(32)
@@ -78,7 +78,7 @@ def test_a_policy_without_quantiles_still_loads_and_refuses_risk_in_one_line(tmp
     assert out.exit_code == 2 and out.output.count("\n") == 1 and "has no quantiles output" in out.output
 
 
-def test_eval_risk_reaches_the_results(tmp_path):
+def test_eval_risk_reaches_the_results():
     out = CliRunner().invoke(cli, ["eval", "--scenario", "small-11", "--episodes", "1", "--max-steps", "5",
                                    "--risk", "cvar:0.5", "--json"])
     assert out.exit_code == 0, out.output

@@ -44,8 +44,8 @@ def _readable(bound: float) -> str:
     return f"{bound:g}" if isinstance(bound, float) else str(bound)
 
 
-class IntRange(click.IntRange):
-    """click's IntRange with bounds printed readably in --help and errors: "0 to 2^62"."""
+class _ReadableRange:
+    """A click range type whose bounds --help and errors print readably: "0 to 2^62"."""
 
     def _describe_range(self) -> str:
         if self.min is None:
@@ -53,6 +53,14 @@ class IntRange(click.IntRange):
         if self.max is None:
             return f"at least {_readable(self.min)}"
         return f"{_readable(self.min)} to {_readable(self.max)}"
+
+
+class IntRange(_ReadableRange, click.IntRange):
+    """click's IntRange with bounds printed readably in --help and errors: "0 to 2^62"."""
+
+
+class FloatRange(_ReadableRange, click.FloatRange):
+    """click's FloatRange with bounds printed readably in --help and errors: "0 to 10"."""
 
 
 class BadInput(click.ClickException):
@@ -213,7 +221,7 @@ def acting_options(command):
             "to what it sees falls below the margin (docs/safety.md). Results name the rows it ran.",
         ),
         click.option(
-            "--shield-margin", type=click.FloatRange(0.0, MAX_MARGIN_M), default=None, metavar="M",
+            "--shield-margin", type=FloatRange(0.0, MAX_MARGIN_M), default=None, metavar="M",
             help=f"m: the clearance an action must keep, with --shield [default: {DEFAULT_MARGIN_M:g}].",
         ),
         click.option(

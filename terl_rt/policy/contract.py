@@ -359,11 +359,15 @@ def check_fixed_dims(info: TensorInfo, spec: TensorSpec, kind: str) -> str:
         if not isinstance(want, int):
             continue
         if isinstance(dim, int) and dim != want:
-            if spec.name in ("q_values", "quantiles"):
-                what = "actions" if axis == len(spec.dims) - 1 else "quantile fractions"
+            if spec.name in ("q_values", "quantiles") and axis == len(spec.dims) - 1:
                 raise ContractError(
-                    f"output '{spec.name}' has {dim} {what} on axis {axis}, the contract says {want} "
-                    f"({'one per entry of the pursuer action table' if what == 'actions' else 'tau_k = (k + 0.5) / K'})"
+                    f"output '{spec.name}' has {dim} actions, the contract says {want} "
+                    "(one per entry of the pursuer action table)"
+                )
+            if spec.name == "quantiles":
+                raise ContractError(
+                    f"output 'quantiles' has {dim} quantile fractions, the contract says {want} "
+                    "(tau_k = (k + 0.5) / K, K = 32)"
                 )
             raise ContractError(
                 f"{kind} '{info.name}' has {dim} features on axis {axis}, the contract says "

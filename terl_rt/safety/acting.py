@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from terl_rt.policy.onnx_policy import PolicyOutput
 from terl_rt.safety.risk import Risk
 from terl_rt.safety.shield import Shield, shield_actions
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.params import WorldParams
+
+if TYPE_CHECKING:  # the policy layer sits above this one: its output's type is named, not imported
+    from terl_rt.policy.onnx_policy import PolicyOutput
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terl_rt.policy.contract import NUM_QUANTILES
-
 RISK_MEASURES = ("cvar",)
 """The names `Risk.parse` reads before the colon."""
 
@@ -26,7 +24,7 @@ class Risk:
 
     alpha: float
     """share of the quantiles kept, in (0, 1]: 1 is the mean of all of them (the Q-values up
-    to float rounding); 0.25 the lowest 8 of 32."""
+    to float rounding); 0.25 the lowest 8 of the contract's 32."""
 
     def __post_init__(self) -> None:
         alpha = self.alpha
@@ -45,10 +43,9 @@ class Risk:
             raise ValueError(f"risk: cvar's ALPHA must be a number in (0, 1], got {value!r:.40}") from None
         return cls(alpha if math.isfinite(alpha) else -1.0)
 
-    @property
-    def kept(self) -> int:
-        """The quantiles kept of K = 32: round(alpha K), at least 1."""
-        return max(1, round(self.alpha * NUM_QUANTILES))
+    def kept(self, fractions: int) -> int:
+        """The quantiles kept of `fractions` (K, 32 in the contract): round(alpha K), at least 1."""
+        return max(1, round(self.alpha * fractions))
 
     @property
     def label(self) -> str:
@@ -57,8 +54,8 @@ class Risk:
 
     def values(self, quantiles: np.ndarray) -> np.ndarray:
         """[..., 9] float32 CVaR of each action from its quantiles [..., K, 9]: the mean of the
-        `kept` lowest. Sorted first, so that quantiles that cross (an IQN head does not force
+        `kept(K)` lowest. Sorted first, so that quantiles that cross (an IQN head does not force
         them to rise with tau) still give the lower tail; without crossing these are the
         quantiles at the lowest fractions."""
-        lowest = np.sort(quantiles, axis=-2)[..., : self.kept, :]
+        lowest = np.sort(quantiles, axis=-2)[..., : self.kept(quantiles.shape[-2]), :]
         return lowest.mean(axis=-2, dtype=np.float64).astype(np.float32)
