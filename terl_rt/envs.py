@@ -29,6 +29,11 @@ Seeds follow `Simulator`: an int, a np.random.Generator (one draw gives the int)
 (fresh entropy); `reset(seed=...)` starts that seed's stream of episodes, `reset()` the
 next episode of the current one.
 
+`ShieldedParallelEnv(env, shield)` wears the shield (terl_rt.safety.shield) over the actions
+given to `step`: each live pursuer's action is checked against its last observation, an
+unsafe one replaced by the kept action of largest clearance, and
+`infos[agent]["shield_overrode"]` says where that happened.
+
 The wrapper holds a one-environment `terl_rt.sim.world.World` and only translates
 between its arrays and PettingZoo's dicts: the rules live in the world alone, and the
 batched `World` stays the fast path for many environments at once. Same scenario, seed
@@ -49,11 +54,13 @@ try:
     from gymnasium import spaces
     from pettingzoo import AECEnv, ParallelEnv
     from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
+    from pettingzoo.utils.wrappers import BaseParallelWrapper
 except ImportError as error:  # pragma: no cover - exercised without the extra
     raise ImportError(
         f"terl_rt.envs needs the pettingzoo extra: {install_hint('pettingzoo')}"
     ) from error
 
+from terl_rt.safety.shield import Shield, shield_actions
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.evader import EvaderPolicy
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -257,6 +264,46 @@ class TerlParallelEnv(ParallelEnv):
             "obstacles": observation.obstacles[0, i],
             "mask": observation.mask[0, i],
         }
+
+
+class ShieldedParallelEnv(BaseParallelWrapper):
+    """`env` (a `TerlParallelEnv`) under the shield: `step` replaces each live pursuer's
+    unsafe action, judged from the observation it was given last, by the kept action of
+    largest clearance (the action given is all a dict of actions says of a preference), and
+    adds `shield_overrode` (bool) to every agent's info. Everything else is `env`'s."""
+
+    def __init__(self, env: TerlParallelEnv, shield: Shield | None = None) -> None:
+        if not isinstance(env, TerlParallelEnv):
+            raise TypeError(f"ShieldedParallelEnv wraps a TerlParallelEnv (terl_rt.envs.parallel_env), got {_shown(env)}")
+        super().__init__(env)
+        self.shield = Shield() if shield is None else shield
+        self._last: dict[str, dict[str, np.ndarray]] = {}
+        self._number = {agent: i for i, agent in enumerate(env.possible_agents)}
+
+    def reset(self, seed: Seed = None, options: dict | None = None) -> tuple[dict, dict]:
+        observations, infos = self.env.reset(seed=seed, options=options)
+        self._last = observations
+        return observations, infos
+
+    def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        """`env.step` with the shield's actions; the checks of `env.step` come first."""
+        if not isinstance(actions, Mapping) or not self.env.agents:
+            return self.env.step(actions)  # its own error
+        live = [agent for agent in self.env.agents if agent in actions]
+        given = np.array([_action(agent, actions[agent]) for agent in live], np.int64)
+        rows = Observation(
+            **{name: np.stack([self._last[agent][name] for agent in live]) for name in self._last[live[0]]},
+            pursuer_index=np.array([self._number[agent] for agent in live]),
+        ) if live else None
+        chosen, overrode = (given, np.zeros(0, bool)) if rows is None else shield_actions(
+            rows, given, None, self.env.scenario.params, self.shield)
+        observations, rewards, terminations, truncations, infos = self.env.step(
+            {**actions, **dict(zip(live, chosen.tolist()))})
+        flags = dict(zip(live, overrode.tolist()))
+        for agent, info in infos.items():
+            info["shield_overrode"] = flags.get(agent, False)
+        self._last = observations
+        return observations, rewards, terminations, truncations, infos
 
 
 def _shown(value: Any) -> str:

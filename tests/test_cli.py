@@ -64,7 +64,7 @@ def test_eval_json_is_one_object_with_the_documented_keys(files):
                     "--max-steps", "4", "--json")
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)  # the whole of stdout is one object
-    assert set(out) == {"terl_rt", "schema", "policy", "seed", "scenarios"}
+    assert set(out) == {"terl_rt", "schema", "policy", "acting", "seed", "scenarios"}
     assert out["schema"] == RESULTS_SCHEMA
     assert out["policy"]["name"] == "linear-test"
     (row,) = out["scenarios"]
@@ -124,7 +124,7 @@ def test_info_prints_metadata_and_the_contract_report(files):
 
 def test_info_says_whether_the_contract_holds_on_its_first_line(files):
     first = invoke("info", files["policy"]).stdout.splitlines()[0]
-    assert first.endswith("meets the contract (45 of 45 checks pass)"), first
+    assert first.endswith("meets the contract (46 of 46 checks pass)"), first
     broken = invoke("info", write_broken_policy(files["folder"] / "eight-first.onnx", "eight_actions"))
     assert "refused by the contract: output 'q_values'" in broken.stdout.splitlines()[0]
 

@@ -298,7 +298,7 @@ def test_report_cli_json_lists_scenarios_groups_goals_and_files(policy, tmp_path
                     "--max-steps", "2", "--out", tmp_path, "--json")
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)
-    assert set(out) == {"policy", "scenarios", "groups", "goals", "files"}
+    assert set(out) == {"policy", "acting", "scenarios", "groups", "goals", "files"}
     assert [row["name"] for row in out["scenarios"]] == ["small-11"]
     assert out["scenarios"][0]["steps_mean"] == 2.0
     assert [group["group"] for group in out["groups"]] == ["small"]

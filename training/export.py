@@ -3,10 +3,12 @@
 The graph is traced in eval mode with the legacy TorchScript exporter (opset 23):
 inputs ego/teammates/evaders/obstacles float32 and mask bool with dynamic B, P, E
 and O; outputs q_values [B, 9] (mean of the quantiles at the fixed fractions
-(k + 0.5) / 32, folded into the graph) and, for models with target selection,
-target_weights [B, E]. `export_onnx` checks the file with onnx.checker and then
-compares it with the torch model by `check_parity`. `reexport_onnx` writes an exported
-policy again from the weights inside it, with this exporter's graph.
+(k + 0.5) / 32, folded into the graph), for models with target selection
+target_weights [B, E], and for models with a distributional (IQN) head those quantiles
+themselves, [B, 32, 9] (contract revision 1.1). `export_onnx` checks the file with
+onnx.checker and then compares it with the torch model by `check_parity`. `reexport_onnx`
+writes an exported policy again from the weights inside it, with this exporter's graph;
+`with_quantiles` gives an older file the quantiles output and changes nothing else.
 """
 
 from __future__ import annotations
@@ -35,12 +37,13 @@ from terl_rt.policy.contract import (
     META_LAYERS,
     META_MODEL,
     META_PURSUER_ACTIONS,
+    NUM_QUANTILES,
     OUTPUTS,
 )
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.scenario import PAPER_SUITE, Scenario
 from terl_rt.sim.simulator import Simulator
-from training.networks.encoders import QNetwork
+from training.networks.encoders import QNetwork, fixed_fractions
 from training.onnx_weights import network_from_onnx
 
 OPSET = 23
@@ -58,8 +61,27 @@ class ParityError(RuntimeError):
     """The exported graph and the torch model disagree beyond the tolerance."""
 
 
+def contract_outputs(
+    model: QNetwork,
+    ego: torch.Tensor,
+    teammates: torch.Tensor,
+    evaders: torch.Tensor,
+    obstacles: torch.Tensor,
+    mask: torch.Tensor,
+) -> tuple[torch.Tensor, ...]:
+    """The model's contract outputs, in `output_names` order: q_values [B, 9] (the mean of the
+    quantiles at the fixed fractions, as `QNetwork.policy_outputs`), target_weights [B, E] with
+    target selection, and the quantiles [B, K, 9] themselves with a distributional head."""
+    output = model(ego, teammates, evaders, obstacles, mask, fixed_fractions(device=ego.device))
+    outputs = (output.quantiles.mean(dim=1),)
+    if output.target_weights is not None:
+        outputs += (output.target_weights,)
+    return outputs + (output.quantiles,) if model.distributional else outputs
+
+
 class _ContractGraph(nn.Module):
-    """The traced function: the five contract inputs -> q_values [B, 9] (, target_weights [B, E])."""
+    """The traced function: the five contract inputs -> q_values [B, 9] (, target_weights [B, E])
+    (, quantiles [B, K, 9])."""
 
     def __init__(self, model: QNetwork) -> None:
         super().__init__()
@@ -73,13 +95,14 @@ class _ContractGraph(nn.Module):
         obstacles: torch.Tensor,
         mask: torch.Tensor,
     ) -> tuple[torch.Tensor, ...]:
-        q_values, target_weights = self.model.policy_outputs(ego, teammates, evaders, obstacles, mask)
-        return (q_values,) if target_weights is None else (q_values, target_weights)
+        return contract_outputs(self.model, ego, teammates, evaders, obstacles, mask)
 
 
 def output_names(model: QNetwork) -> tuple[str, ...]:
-    """The contract's outputs the model has: q_values, plus target_weights with target selection."""
-    return tuple(spec.name for spec in OUTPUTS if spec.required or model.has_target_selection)
+    """The contract's outputs the model has: q_values, plus target_weights with target
+    selection, plus quantiles with a distributional head."""
+    has = {"q_values": True, "target_weights": model.has_target_selection, "quantiles": model.distributional}
+    return tuple(spec.name for spec in OUTPUTS if has[spec.name])
 
 
 def contract_metadata(model: QNetwork) -> dict[str, str]:
@@ -244,6 +267,48 @@ def reexport_onnx(source: str | Path, path: str | Path, metadata: dict[str, str]
     return export_onnx(model, path, {**kept, **(metadata or {})})
 
 
+def with_quantiles(source: str | Path, path: str | Path) -> Path:
+    """Write the policy at `source` again at `path` with the optional output quantiles [B, K, 9]
+    (contract revision 1.1), its graph otherwise untouched, and return the path.
+
+    The quantiles are the tensor the graph's q_values already average (an Identity of the
+    ReduceMean's input), so q_values stay what they were, bit for bit, which is checked on
+    `parity_cases` against the source file; the quantiles are checked against the network
+    rebuilt from the file's weights (`check_parity`). Metadata is kept as it is.
+
+    Raises:
+        ValueError: the source has quantiles already, or its network has no distributional
+            head (dqn), or its q_values are not the mean of a [B, K, 9] tensor.
+        ParityError: q_values changed, or the quantiles differ from the network's.
+    """
+    source, path = Path(source), Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model, _ = network_from_onnx(source)
+    if not model.distributional:
+        raise ValueError(f"{source}: a {model.config['name']} network has no quantiles (no distributional head)")
+    proto = onnx.load(str(source))
+    graph = proto.graph
+    if any(output.name == "quantiles" for output in graph.output):
+        raise ValueError(f"{source}: has the quantiles output already")
+    mean = next(node for node in graph.node if "q_values" in node.output)
+    if mean.op_type != "ReduceMean":
+        raise ValueError(f"{source}: q_values come from a {mean.op_type} node, not the mean of the quantiles")
+    graph.node.append(onnx.helper.make_node("Identity", [mean.input[0]], ["quantiles"], name="quantiles"))
+    dims = ["B", NUM_QUANTILES, len(PURSUER_ACTIONS)]
+    graph.output.append(onnx.helper.make_tensor_value_info("quantiles", onnx.TensorProto.FLOAT, dims))
+    onnx.checker.check_model(proto, full_check=True)
+    with atomic_output(path, replace=True) as partial:  # published at `path` once it passes
+        onnx.save(proto, str(partial))
+        before = ort.InferenceSession(str(source), providers=["CPUExecutionProvider"])
+        after = ort.InferenceSession(str(partial), providers=["CPUExecutionProvider"])
+        for case, inputs in parity_cases((8, 14, 20)):
+            feed = {name: tensor.numpy() for name, tensor in inputs.items()}
+            if not np.array_equal(before.run(["q_values"], feed)[0], after.run(["q_values"], feed)[0]):
+                raise ParityError(f"{case}: q_values of {partial} differ from those of {source}")
+        check_parity(model, partial)
+    return path
+
+
 def read_metadata(path: str | Path) -> dict[str, str]:
     """metadata_props of an ONNX file as a dict."""
     proto = onnx.load(str(path), load_external_data=False)
@@ -295,7 +360,8 @@ def check_parity(
     """Compare the eval-mode torch model with onnxruntime on the file at `path`.
 
     Runs every case of `parity_cases` and compares q_values [B, 9] and, where the
-    model has them, target_weights [B, E]. Returns the largest difference, each relative
+    model has them, target_weights [B, E] and quantiles [B, K, 9] (a file exported before
+    contract revision 1.1 may lack the quantiles). Returns the largest difference, each relative
     to its output's largest magnitude when that is above 1 (see PARITY_TOLERANCE).
 
     Raises:
@@ -305,8 +371,9 @@ def check_parity(
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     names = output_names(model)
     got_names = tuple(output.name for output in session.get_outputs())
-    if got_names != names:
+    if got_names not in (names, tuple(name for name in names if name != "quantiles")):  # older files lack them
         raise ParityError(f"{path}: expected outputs {names}, got {got_names}")
+    names = got_names
     device = next(model.parameters()).device
     was_training = model.training
     model.eval()
@@ -314,7 +381,7 @@ def check_parity(
     try:
         for case, inputs in parity_cases(evader_slots):
             with torch.no_grad():
-                expected = model.policy_outputs(*(inputs[n].to(device) for n in INPUT_NAMES))
+                expected = contract_outputs(model, *(inputs[n].to(device) for n in INPUT_NAMES))
             feed = {name: tensor.numpy() for name, tensor in inputs.items()}
             for name, want, got in zip(names, expected, session.run(list(names), feed)):
                 worst = max(worst, _compare(f"{case}, {name}", want.cpu().numpy(), got, tolerance))

@@ -24,9 +24,13 @@ from terl_rt.cli.options import (
     threads_option,
 )
 from terl_rt.evaluation.backends import RayMissing
+from terl_rt.safety.acting import Acting
+from terl_rt.safety.risk import Risk
+from terl_rt.safety.shield import Shield
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.speed import (
     POLICY_BATCHES,
+    acting_costs,
     SCALING_PURSUERS,
     SIM_WARMUP,
     backend_speeds,
@@ -53,6 +57,7 @@ def bench() -> None:
     Examples:
       terl-rt bench sim --scenario large-80 --envs 16
       terl-rt bench policy --threads 1
+      terl-rt bench shield --scenario large-80 --steps 50
     """
 
 
@@ -232,6 +237,56 @@ def eval_command(policy_path, scenario_names, suite, episodes, seed, max_steps, 
         click.echo(f"{row.envs:>6}{row.episodes:>10}{row.run_s:>10.1f}{row.episodes_per_s:>12.2f}"
                    f"{rows[0].run_s / row.run_s:>9.2f}x{row.cpu_s:>10.1f}{rows[0].cpu_s / row.cpu_s:>10.2f}x")
     click.echo(f"every episode the same at every batch size: {'yes' if identical else 'NO'}")
+
+
+@bench.command("shield")
+@policy_option
+@scenario_option
+@click.option("--steps", type=IntRange(min=1, max=100_000), default=50, show_default=True, help="Timed batch steps.")
+@click.option(
+    "--envs", "num_envs", type=IntRange(min=1, max=4096), default=BATCH_ENVS, show_default=True,
+    help="Environments stepped together (an evaluation's batch).",
+)
+@click.option(
+    "--risk", "risks", multiple=True, metavar="cvar:ALPHA",
+    help="Also time risk-aware acting at this measure, alone and under the shield (repeat for several).",
+)
+@click.option("--repeat", type=IntRange(min=1, max=100), default=1, show_default=True,
+              help="Rounds over the rules; each one's least CPU time counts.")
+@seed_option
+@json_option
+def shield_command(policy_path, scenario, steps: int, num_envs: int, risks, repeat: int, seed: int,
+                   as_json: bool) -> None:
+    """CPU time per evaluation step with and without the shield (docs/safety.md): the same
+    batched steps as `terl-rt eval` takes (policy on one onnxruntime thread, the rule, the
+    simulator), greedy first, then under the shield with its defaults, then each --risk alone
+    and shielded; prints ms of CPU a batch step and each rule's ratio to the greedy one.
+
+    \b
+    Examples:
+      terl-rt bench shield --scenario large-80 --steps 50
+      terl-rt bench shield --scenario large-80 --risk cvar:0.25 --repeat 3 --json
+    """
+    try:
+        measures = [Risk.parse(text) for text in risks]
+    except ValueError as error:
+        raise BadInput(str(error)) from None
+    policy = open_policy(policy_path, threads=1)
+    actings = [Acting(), Acting(Shield())] + [Acting(shield, risk) for risk in measures for shield in (None, Shield())]
+    for acting in actings:
+        try:
+            acting.check(policy)
+        except ValueError as error:
+            raise BadInput(str(error)) from None
+    rows = acting_costs(policy, scenario, actings, steps, num_envs, seed, repeat)
+    if as_json:
+        click.echo(json.dumps({"policy": policy.name, "scenario": scenario.name, "envs": num_envs, "seed": seed,
+                               "repeat": repeat, "rows": [row.to_dict() for row in rows]}))
+        return
+    click.echo(f"{policy.name} on {scenario.name}: {num_envs} environments, {steps} steps, best of {repeat}")
+    click.echo(f"{'acting':<36}{'decisions':>10}{'CPU ms/step':>13}{'ratio':>8}")
+    for row in rows:
+        click.echo(f"{row.acting or 'greedy (the paper)':<36}{row.decisions:>10}{row.cpu_ms_per_step:>13.1f}{row.ratio:>8.2f}")
 
 
 @bench.command("backends")

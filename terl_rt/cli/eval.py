@@ -10,6 +10,8 @@ import click
 
 import terl_rt
 from terl_rt.cli.options import (
+    acting_of,
+    acting_options,
     address_option,
     backend_option,
     episodes_option,
@@ -48,9 +50,12 @@ successful episodes and mean collision ratio, each with its bootstrap interval."
 
 CSV_COLUMNS = (
     "scenario", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
-    "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "terl_rt", "schema",
+    "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "acting", "shield_overrides",
+    "decisions", "terl_rt", "schema",
 )
-"""Columns of `terl-rt eval --csv`, one row per episode."""
+"""Columns of `terl-rt eval --csv`, one row per episode: `acting` names a run that did not act
+greedily (`terl_rt.safety.acting.Acting.label`, empty for the paper's greedy rule), the
+shield's two are empty without it."""
 
 
 def _row(result: ScenarioResult) -> str:
@@ -92,7 +97,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
                 writer.writerow({
                     "scenario": result.name, **{k: v for k, v in row.items() if k in CSV_COLUMNS},
                     "max_steps": result.max_steps, "policy": info["name"], "policy_sha256": info["sha256"],
-                    "terl_rt": version, "schema": RESULTS_SCHEMA,
+                    "acting": result.acting.label, "terl_rt": version, "schema": RESULTS_SCHEMA,
                 })
 
 
@@ -114,10 +119,11 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
     help="Also write one row per episode (seed, outcome, steps, collisions, captures, return) to this CSV file.",
 )
 @threads_option
+@acting_options
 @force_option
 def eval_command(
     policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, log_path,
-    as_json, csv_path, threads, force,
+    as_json, csv_path, threads, shield, shield_margin, shield_horizon, risk, force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s) over the successful episodes,
     collision ratio, steps and wall time per scenario, with 95 % confidence intervals over
@@ -130,10 +136,14 @@ def eval_command(
     first step. With --backend ray the episodes are Ray tasks (the policy reaches the
     workers through Ray's object store); their steps stream back to the log as they are
     taken, and an episode whose worker dies is run again elsewhere, counted once.
+    --shield and --risk change how the policy acts (docs/safety.md); the table's first line,
+    the JSON ("acting") and the CSV name such a run, and a shielded one counts its overrides.
 
     \b
     Examples:
       terl-rt eval                                     # the shipped policy on small-15, 20 episodes
+      terl-rt eval --scenario large-80 --shield        # under the shield, its defaults
+      terl-rt eval --scenario large-80 --shield --risk cvar:0.25
       terl-rt eval --policy my.onnx --scenario medium-48 --episodes 50 --seed 100
       terl-rt eval --suite paper --workers 2 --csv episodes.csv
       terl-rt eval --episodes 5 --log run.mcap         # then: terl-rt replay run.mcap
@@ -145,6 +155,7 @@ def eval_command(
     if csv_path is not None:
         check_output(csv_path, "--csv", inputs + [("--log", log_path)], force)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
+    acting = acting_of(shield, shield_margin, shield_horizon, risk)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     for option, path in (("--log", log_path), ("--csv", csv_path)):
         if path is not None:  # the default policy too
@@ -152,7 +163,7 @@ def eval_command(
     with stdout_kept_for_json(as_json):  # until the backend (Ray) has shut down
         evaluation = evaluate_with_progress(
             policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
-            backend=backend, address=address, threads=threads,
+            backend=backend, address=address, threads=threads, acting=acting,
         )
     results, info = list(evaluation.results), evaluation.policy
 
@@ -162,14 +173,19 @@ def eval_command(
             "terl_rt": terl_rt_version(),
             "schema": RESULTS_SCHEMA,
             "policy": policy_version(info),
+            "acting": {**acting.to_dict(), "label": acting.label},
             "seed": seed,
             "scenarios": [result.to_dict(per_episode=True) for result in results],
         }))
     else:
-        click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
+        acted = f" [{acting.label}]" if acting.label else ""
+        click.echo(f"policy {policy.name}{acted} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
         click.echo(HEADER)
         for result in results:
             click.echo(_row(result))
+        if acting.shield is not None:
+            click.echo("shield overrides a pursuer-step: " + ", ".join(
+                f"{result.name} {result.shield_overrides_per_decision:.4f}" for result in results))
     if csv_path is not None:
         with atomic_output(csv_path, replace=force) as staging:
             write_csv(staging, results, info)

@@ -18,6 +18,9 @@ from terl_rt.evaluation.runs import Backend
 from terl_rt.policy import shipped
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.policy.shipped import DEFAULT_POLICY, NoShippedPolicy
+from terl_rt.safety.acting import Acting
+from terl_rt.safety.risk import Risk
+from terl_rt.safety.shield import DEFAULT_HORIZON_STEPS, DEFAULT_MARGIN_M, MAX_HORIZON_STEPS, MAX_MARGIN_M, Shield
 from terl_rt.sim.scenario import PAPER_SUITE, SCENARIO_LIMITS, Scenario
 
 MAX_SEED = 2**62
@@ -41,8 +44,8 @@ def _readable(bound: float) -> str:
     return f"{bound:g}" if isinstance(bound, float) else str(bound)
 
 
-class IntRange(click.IntRange):
-    """click's IntRange with bounds printed readably in --help and errors: "0 to 2^62"."""
+class _ReadableRange:
+    """A click range type whose bounds --help and errors print readably: "0 to 2^62"."""
 
     def _describe_range(self) -> str:
         if self.min is None:
@@ -50,6 +53,14 @@ class IntRange(click.IntRange):
         if self.max is None:
             return f"at least {_readable(self.min)}"
         return f"{_readable(self.min)} to {_readable(self.max)}"
+
+
+class IntRange(_ReadableRange, click.IntRange):
+    """click's IntRange with bounds printed readably in --help and errors: "0 to 2^62"."""
+
+
+class FloatRange(_ReadableRange, click.FloatRange):
+    """click's FloatRange with bounds printed readably in --help and errors: "0 to 10"."""
 
 
 class BadInput(click.ClickException):
@@ -162,16 +173,70 @@ def evaluate_with_progress(
     backend: Backend | str = "local",
     address: str | None = None,
     threads: int | None = None,
+    acting: Acting = Acting(),
 ) -> Evaluation:
     """`terl_rt.evaluate` with a progress bar per scenario on stderr; the arguments are
-    evaluate's. A missing Ray or a misplaced --address is BadInput."""
+    evaluate's (`acting` its shield and risk). A missing Ray or a misplaced --address is BadInput."""
     if isinstance(backend, str):
         check_address(backend, address)
+    check_acting(acting, policy)
     try:
         return evaluate(policy, scenarios, episodes, seed, max_steps=max_steps, log=log, replace_log=replace_log,
-                        workers=workers, backend=backend, address=address, threads=threads, progress=progress_bar)
+                        workers=workers, backend=backend, address=address, threads=threads, progress=progress_bar,
+                        shield=acting.shield, risk=acting.risk)
     except RayMissing as error:
         raise BadInput(str(error)) from None
+
+
+def acting_of(shield: bool, margin_m: float | None, horizon_steps: int | None, risk: str | None) -> Acting:
+    """The acting rule of --shield, --shield-margin, --shield-horizon and --risk; BadInput for
+    a shield parameter without --shield or a --risk that does not parse."""
+    if not shield and (margin_m is not None or horizon_steps is not None):
+        raise BadInput("--shield-margin and --shield-horizon set the shield's parameters; pass --shield with them")
+    try:
+        return Acting(
+            Shield(DEFAULT_MARGIN_M if margin_m is None else margin_m,
+                   DEFAULT_HORIZON_STEPS if horizon_steps is None else horizon_steps) if shield else None,
+            None if risk is None else Risk.parse(risk),
+        )
+    except ValueError as error:
+        raise BadInput(str(error)) from None
+
+
+def check_acting(acting: Acting, policy: Any) -> None:
+    """BadInput when `acting` cannot act with `policy` (--risk for a policy without quantiles)."""
+    try:
+        acting.check(policy)
+    except ValueError as error:
+        raise BadInput(str(error)) from None
+
+
+def acting_options(command):
+    """--shield, --shield-margin, --shield-horizon and --risk, stacked in this order; the
+    command gets them as `shield`, `shield_margin`, `shield_horizon` and `risk` (`acting_of`)."""
+    options = (
+        click.option(
+            "--shield", is_flag=True,
+            help="Act under the decentralised shield: each pursuer drops the actions whose predicted clearance "
+            "to what it sees falls below the margin (docs/safety.md). Results name the rows it ran.",
+        ),
+        click.option(
+            "--shield-margin", type=FloatRange(0.0, MAX_MARGIN_M), default=None, metavar="M",
+            help=f"m: the clearance an action must keep, with --shield [default: {DEFAULT_MARGIN_M:g}].",
+        ),
+        click.option(
+            "--shield-horizon", type=IntRange(1, MAX_HORIZON_STEPS), default=None, metavar="STEPS",
+            help=f"Decision steps (0.5 s) the shield predicts, with --shield [default: {DEFAULT_HORIZON_STEPS}].",
+        ),
+        click.option(
+            "--risk", type=str, default=None, metavar="cvar:ALPHA",
+            help="Act on the mean of the lowest ALPHA share of each action's quantiles (CVaR) instead of all of "
+            "them, e.g. cvar:0.25; needs a policy with the quantiles output (docs/safety.md).",
+        ),
+    )
+    for option in reversed(options):
+        command = option(command)
+    return command
 
 
 scenario_option = click.option(

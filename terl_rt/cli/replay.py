@@ -17,7 +17,23 @@ def _episode_dict(entry: LoggedEpisode) -> dict:
         "episode": entry.number, "index": entry.index, "scenario": entry.scenario.name, "seed": entry.seed,
         "steps": entry.steps, "complete": entry.complete, "damaged_chunks": list(entry.damaged),
         "metrics": None if entry.metrics is None else entry.metrics.to_dict(),
+        "shield_overrides": None if entry.metrics is None else entry.metrics.shield_overrides,
     }
+
+
+def _shield_line(entries: list[LoggedEpisode]) -> str | None:
+    """The overrides of the listed episodes that ran under the shield, in one line; None without any."""
+    shielded = [e.metrics for e in entries if e.metrics is not None and e.metrics.shield_overrides is not None]
+    if not shielded:
+        return None
+    overrides, decisions = sum(m.shield_overrides for m in shielded), sum(m.decisions for m in shielded)
+    return (f"shield: {overrides:,} overrides in {decisions:,} pursuer-steps of {len(shielded)} shielded episode(s)"
+            f" ({overrides / max(decisions, 1):.4f} a pursuer-step)")
+
+
+def _per_pursuer(counts) -> str:
+    """Pursuers the shield overrode and how often, e.g. "3 x 2, 7 x 1"; "none"."""
+    return ", ".join(f"{i} x {n}" for i, n in enumerate(counts.tolist()) if n) or "none"
 
 
 LIST_HEADER = (
@@ -57,7 +73,8 @@ def _held_note(log: str) -> str | None:
 @json_option
 def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
     """List the episodes of an MCAP episode log (from `terl-rt eval --log`), show the
-    events of one (--episode K), or verify episodes by re-simulating them (--verify:
+    events of one (--episode K; under --shield, how often it overrode each pursuer), or
+    verify episodes by re-simulating them (--verify:
     every episode, or K). Exit status 1 when a verification finds a mismatch. A batched
     run that was killed leaves the episodes it held back for their turn in LOG.held/,
     one log each; the note under the list names them.
@@ -89,10 +106,12 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
 
     entries = [reader.episode(number) for number in chosen]
     events = []
+    overrides = None
     if episode is not None:
         events = [
             {"step": step.step, **event} for step in reader.steps(episode) for event in step.events
         ]
+        overrides = reader.shield_overrides(episode)
     if as_json:
         out = {
             "log": log, "policy": policy_json(reader.policy),
@@ -102,12 +121,17 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
         }
         if episode is not None:
             out["events"] = events
+            out["shield_overrides_by_pursuer"] = None if overrides is None else overrides.tolist()
         click.echo(json.dumps(out))
         return
     click.echo(f"log {log}: policy {reader.policy['name']} (sha256 {reader.policy['sha256'][:12]})")
     click.echo(LIST_HEADER)
     for entry in entries:
         click.echo(_episode_line(entry))
+    if _shield_line(entries):
+        click.echo(_shield_line(entries))
+    if overrides is not None:
+        click.echo(f"shield overrode, by pursuer (steps): {_per_pursuer(overrides)}")
     if episode is not None:
         click.echo("events:" if events else "events: none")
         for event in events:

@@ -12,6 +12,8 @@ import click
 
 from terl_rt.cli.options import (
     BadInput,
+    acting_of,
+    acting_options,
     address_option,
     backend_option,
     evaluate_with_progress,
@@ -45,6 +47,7 @@ from terl_rt.paper.report import (
     write_report,
 )
 from terl_rt.policy.onnx_policy import policy_info
+from terl_rt.safety.acting import Acting
 
 
 def command_line(
@@ -62,6 +65,7 @@ def command_line(
     beyond: bool = False,
     beyond_episodes: int | None = None,
     terl: str = DEFAULT_TERL,
+    acting: Acting = Acting(),
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -87,6 +91,11 @@ def command_line(
         words += ["--address", address]
     if threads is not None:
         words += ["--threads", str(threads)]
+    if acting.shield is not None:
+        words += ["--shield", "--shield-margin", f"{acting.shield.margin_m:g}",
+                  "--shield-horizon", str(acting.shield.horizon_steps)]
+    if acting.risk is not None:
+        words += ["--risk", acting.risk.label]
     words += ["--out", out]
     if force:
         words.append("--force")
@@ -127,6 +136,7 @@ def command_line(
 @backend_option
 @address_option
 @threads_option
+@acting_options
 @click.option(
     "--out", type=str, default="report", show_default=True, metavar="DIR",
     help="Folder to write results.md and results.png to (made if missing).",
@@ -142,7 +152,7 @@ def command_line(
 @force_option
 def report_command(
     policy_paths, scenario_names, beyond, terl, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
-    out, keep_progress, as_json, force,
+    shield, shield_margin, shield_horizon, risk, out, keep_progress, as_json, force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
@@ -172,6 +182,9 @@ def report_command(
     them back and evaluates only what is left; the folder goes once the files are written
     (unless --keep-progress).
 
+    --shield and --risk (one policy only: the paper's comparison stays as the paper ran it)
+    evaluate the policy acting so (docs/safety.md); the page and the figure name it.
+
     \b
     Examples:
       terl-rt report                                   # the default policy into ./report
@@ -191,11 +204,15 @@ def report_command(
         raise BadInput("--beyond-episodes: the worlds past the paper's are evaluated only with --beyond")
     out_dir = output_folder(out)
     files = policy_files(policy_paths)
+    acting = acting_of(shield, shield_margin, shield_horizon, risk)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address, beyond,
-        beyond_episodes, terl,
+        beyond_episodes, terl, acting,
     )
     if len(files) > 1 or beyond or terl != DEFAULT_TERL:
+        if not acting.plain:
+            raise BadInput("--shield and --risk evaluate one policy: the paper's comparison runs every policy as the "
+                           "paper did (greedy); compare shielded rows with `terl-rt sweep --shield`")
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
         run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
                             address, threads, out_dir, keep_progress, as_json, force, command, terl)
@@ -209,20 +226,22 @@ def report_command(
     scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers,
-                                     backend=backend, address=address, threads=threads).results
+                                     backend=backend, address=address, threads=threads, acting=acting).results
     info = policy_info(policy)
     paths = ReportPaths(markdown=out_dir / MARKDOWN_NAME, figure=out_dir / FIGURE_NAME)
     # The results reach the terminal before any file is written: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({
             "policy": policy_json(info),
+            "acting": {**acting.to_dict(), "label": acting.label},
             "scenarios": [result.to_dict() for result in results],
             "groups": [summary.to_dict() for summary in group_summaries(results)],
             "goals": [check.to_dict() for check in goal_checks(results)],
             "files": {"markdown": str(paths.markdown), "figure": str(paths.figure)},
         }))
     else:
-        click.echo(f"policy {policy.name} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
+        acted = f" [{acting.label}]" if acting.label else ""
+        click.echo(f"policy {policy.name}{acted} ({policy.path}, sha256 {policy.sha256[:12]}), seed {seed}")
         click.echo(textwrap.fill(where_it_stands(results), width=100))
     with atomic_outputs(out_dir, (FIGURE_NAME, MARKDOWN_NAME), replace=force) as staging:
         write_report(results, info, staging, command)

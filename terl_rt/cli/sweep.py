@@ -12,7 +12,10 @@ import click
 
 from terl_rt.cli.eval import terl_rt_version
 from terl_rt.cli.options import (
+    acting_of,
+    acting_options,
     address_option,
+    check_acting,
     backend_option,
     episodes_option,
     json_option,
@@ -78,11 +81,12 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
     "--out", type=str, default="sweep", show_default=True, metavar="DIR",
     help="Folder to write sweep.json, sweep.csv and sweep.md to (made if missing).",
 )
+@acting_options
 @json_option
 @force_option
 def sweep_command(
     policy_paths, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, threads,
-    out, as_json, force,
+    out, shield, shield_margin, shield_horizon, risk, as_json, force,
 ) -> None:
     """Evaluate several policies on several scenarios, the same seeds each (episode k
     with seed + k), as one batch of episodes, and write one results table: DIR/sweep.md
@@ -90,7 +94,8 @@ def sweep_command(
     ratio with 95 % bootstrap intervals, steps) and DIR/sweep.json (every episode too).
     With --backend ray every episode is a Ray task, the whole sweep submitted at once, so
     a cluster stays busy; the table is the same on either backend. A progress bar goes to
-    stderr. Existing files are replaced only with --force.
+    stderr. Existing files are replaced only with --force. --shield and --risk make every
+    policy act so (docs/safety.md); each row names it ("terl [shield 0.5 m / 4 steps]").
 
     \b
     Examples:
@@ -100,7 +105,10 @@ def sweep_command(
     """
     out_dir = output_folder(out)
     scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
+    acting = acting_of(shield, shield_margin, shield_horizon, risk)
     policies = open_policies(policy_paths, threads=policy_threads(backend, workers, threads))
+    for policy in policies:
+        check_acting(acting, policy)
     inputs = [("--policy", policy.path) for policy in policies] + [("--scenario-file", scenario_file)]
     for name in TABLE_FILES:
         check_output(out_dir / name, "--out", inputs, force)
@@ -110,8 +118,10 @@ def sweep_command(
     ) as bar:
         sweep = run_sweep(
             policies, scenarios, episodes, seed, runner, max_steps=max_steps, progress=lambda number, metrics: bar.update(1),
+            acting=acting,
         )
-    header = {"terl_rt": terl_rt_version(), "episodes": episodes, "seed": seed, "backend": backend}
+    header = {"terl_rt": terl_rt_version(), "episodes": episodes, "seed": seed, "backend": backend,
+              "acting": {**acting.to_dict(), "label": acting.label}}
     # The results reach the terminal first: a full disk cannot lose them.
     if as_json:
         click.echo(json.dumps({**header, **sweep_json(sweep)}))

@@ -20,6 +20,7 @@ from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.protocol import Policy
+from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario
 
@@ -52,6 +53,17 @@ class ScenarioResult:
     per_episode: tuple[EpisodeMetrics, ...]
     step_s: float = 0.5
     """s: the decision step (params.dt x params.substeps); the step limit lasts max_steps x step_s."""
+    acting: Acting = Acting()
+    """how the policy acted: greedy (the paper's rule), risk-aware or shielded (terl_rt.safety);
+    `acting.label` names a row that did not act greedily."""
+
+    @property
+    def shield_overrides_per_decision(self) -> float | None:
+        """The shield's overrides per pursuer-step over every episode; None for a run without it."""
+        if self.acting.shield is None:
+            return None
+        decisions = sum(m.decisions or 0 for m in self.per_episode)
+        return sum(m.shield_overrides or 0 for m in self.per_episode) / decisions if decisions else float("nan")
 
     @property
     def limit_s(self) -> float:
@@ -80,7 +92,8 @@ class ScenarioResult:
         """One row per episode (fields of RESULTS_SCHEMA): index, seed, outcome (success,
         too_few_pursuers or step_limit), steps, travel time, collisions (pursuers),
         collision ratio, captures (evaders encircled) and return (every pursuer's reward
-        summed over the episode)."""
+        summed over the episode); under the shield also its overrides and the pursuer-steps
+        decided."""
         return [
             {
                 "episode": k,
@@ -93,13 +106,16 @@ class ScenarioResult:
                 "collision_ratio": m.collision_ratio,
                 "captures": m.evaders_encircled,
                 "return": m.team_return,
+                **({} if m.shield_overrides is None else {"shield_overrides": m.shield_overrides,
+                                                          "decisions": m.decisions}),
             }
             for k, m in enumerate(self.per_episode)
         ]
 
     def to_dict(self, per_episode: bool = False) -> dict:
         """The JSON row of `terl-rt eval --json`; `per_episode` adds every episode's row
-        (`episode_rows`)."""
+        (`episode_rows`). A row that did not act greedily says how it acted ("acting": the
+        shield's parameters and the risk measure, with the shield's overrides a pursuer-step)."""
         row = {
             "name": self.name,
             "episodes": self.episodes,
@@ -116,6 +132,10 @@ class ScenarioResult:
             "ci95": {name: [_number(bound) for bound in interval] for name, interval in self.ci95().items()},
             "wall_s": self.wall_s,
         }
+        if not self.acting.plain:
+            row["acting"] = {**self.acting.to_dict(), "label": self.acting.label,
+                             "shield_overrides_per_decision": _number(self.shield_overrides_per_decision)
+                             if self.acting.shield is not None else None}
         if per_episode:
             row["per_episode"] = self.episode_rows()
         return row
@@ -136,12 +156,13 @@ def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
 
 def run_scenario(
     policy: Policy, scenario: Scenario, episodes: int, seed: int, backend: Backend,
-    log: EpisodeLogWriter | None = None, progress: Progress | None = None,
+    log: EpisodeLogWriter | None = None, progress: Progress | None = None, acting: Acting = Acting(),
 ) -> ScenarioResult:
     """`episodes` episodes of `scenario` (its step limit in force) on `backend`, episode k
-    with seed + k; every step written to `log` and every episode reported to `progress` in
-    episode order as it finishes. Opens nothing: the caller owns the policy, backend and log."""
-    specs = [EpisodeSpec(0, scenario, seed + k, k) for k in range(episodes)]
+    with seed + k, acting by `acting`; every step written to `log` and every episode reported
+    to `progress` in episode order as it finishes. Opens nothing: the caller owns the policy,
+    backend and log."""
+    specs = [EpisodeSpec(0, scenario, seed + k, k, acting) for k in range(episodes)]
     start = time.perf_counter()
     per_episode: list[EpisodeMetrics] = []
 
@@ -151,13 +172,14 @@ def run_scenario(
             progress(index, metrics)
 
     run_episodes([policy], specs, backend, log, finished)
-    return scenario_result(scenario, seed, per_episode, time.perf_counter() - start)
+    return scenario_result(scenario, seed, per_episode, time.perf_counter() - start, acting)
 
 
-def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[EpisodeMetrics], wall_s: float) -> ScenarioResult:
-    """The ScenarioResult of `per_episode`, episode k run with seed + k; wall_s in s."""
+def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[EpisodeMetrics], wall_s: float,
+                    acting: Acting = Acting()) -> ScenarioResult:
+    """The ScenarioResult of `per_episode`, episode k run with seed + k acting by `acting`; wall_s in s."""
     return ScenarioResult(
         name=scenario.name, episodes=len(per_episode), seed=seed, max_steps=scenario.max_steps,
         **asdict(summarize(per_episode)), wall_s=wall_s, per_episode=tuple(per_episode),
-        step_s=scenario.params.dt * scenario.params.substeps,
+        step_s=scenario.params.dt * scenario.params.substeps, acting=acting,
     )

@@ -26,6 +26,9 @@ from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.policy.protocol import Policy, as_policy
 from terl_rt.policy.shipped import open_policy
+from terl_rt.safety.acting import Acting
+from terl_rt.safety.risk import Risk
+from terl_rt.safety.shield import Shield
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.scenario import Scenario
 
@@ -40,6 +43,8 @@ class Evaluation:
 
     policy: dict[str, Any]
     """`policy_info` of the policy: name, sha256, path, metadata."""
+    acting: Acting
+    """how the policy acted (greedy, risk-aware, shielded): `acting.label` names the rows."""
     seed: int
     """episode k of every scenario ran with seed + k."""
     results: tuple[ScenarioResult, ...]
@@ -72,6 +77,8 @@ def evaluate(
     threads: int | None = None,
     envs: int = BATCH_ENVS,
     progress: ScenarioProgress | None = None,
+    shield: Shield | bool | None = None,
+    risk: Risk | str | None = None,
 ) -> Evaluation:
     """Evaluate `policy` on `episodes` episodes of each scenario, episode k with seed + k.
 
@@ -88,7 +95,11 @@ def evaluate(
     envs are the backend's). threads: onnxruntime intra-op threads of a policy opened here
     and of each worker's. A policy that is no ONNX file runs in this process only (one local
     worker). progress: a context a scenario (`ScenarioProgress`), told of each episode.
+    shield: True (the default `Shield`) or a Shield puts the policy under the shield
+    (terl_rt.safety.shield; docs/safety.md). risk: "cvar:ALPHA" or a Risk acts on the CVaR of
+    the policy's quantiles instead of their mean (ValueError for a policy without them).
     """
+    acting = Acting.of(shield, risk)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
@@ -99,6 +110,7 @@ def evaluate(
     if policy is None or isinstance(policy, (str, os.PathLike)):
         policy = open_policy(policy, threads=threads)
     policy = as_policy(policy)
+    acting.check(policy)
     if not isinstance(policy, OnnxPolicy) and not _in_process(backend, workers):
         raise ValueError(f"policy {policy.name} is no ONNX file: it runs in this process only "
                          "(the local backend with one worker)")
@@ -110,8 +122,8 @@ def evaluate(
         results = []
         for each in scenarios:
             with progress(each, episodes) if progress is not None else nullcontext(None) as on_episode:
-                results.append(run_scenario(policy, each, episodes, seed, backend, writer, on_episode))
-    return Evaluation(policy_info(policy), seed, tuple(results), None if writer is None else writer.path,
+                results.append(run_scenario(policy, each, episodes, seed, backend, writer, on_episode, acting))
+    return Evaluation(policy_info(policy), acting, seed, tuple(results), None if writer is None else writer.path,
                       0 if writer is None else writer.episodes_written)
 
 

@@ -2,7 +2,8 @@
 `World`, episode j bit for bit the one `Simulator(scenario, seed=seeds[j])` runs alone.
 
 Each step the policy sees every deciding (active) pursuer of every running episode in one
-call; `terl_rt.sim.rollout.Rollout` scatters its greedy actions to the [B, N] action array
+call, and the run's acting rule (terl_rt.safety.acting: greedy, risk-aware, shielded)
+turns its outputs into actions; `terl_rt.sim.rollout.Rollout` scatters them to the [B, N] action array
 (collided pursuers get 0, which the world ignores), restarts each environment whose
 episode ended with the next episode and drops the environments left without one.
 `batch_steps` yields every episode's steps as it takes them (what a Ray task streams
@@ -14,10 +15,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+import dataclasses
+
 import numpy as np
 
 from terl_rt.logs.format import StepRecord
 from terl_rt.policy.onnx_policy import ContractError, OnnxPolicy, PolicyOutput
+from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.rollout import Rollout, RolloutStep, Turn
 from terl_rt.sim.scenario import Scenario
@@ -64,19 +68,23 @@ def check_finite_output(policy: OnnxPolicy, output: PolicyOutput, turn: Turn, wo
 
 def batch_steps(
     policy: OnnxPolicy, scenario: Scenario, seeds: Sequence[int], record: bool = True, envs: int = BATCH_ENVS,
-    stop: Callable[[], bool] | None = None,
+    stop: Callable[[], bool] | None = None, acting: Acting | None = None,
 ) -> Iterator[Message]:
-    """Run the episodes of `seeds` [K] int with the policy's greedy actions, together in
-    one World of min(envs, K) environments; episode j is `Simulator(scenario, seeds[j])`'s.
+    """Run the episodes of `seeds` [K] int with the actions of `acting` (None: the policy's
+    greedy ones), together in one World of min(envs, K) environments; episode j is
+    `Simulator(scenario, seeds[j])`'s driven by those actions.
 
     Yields ("step", j, StepRecord) for episode j's state after reset (step 0) and after
     each step when `record`, then ("end", j, EpisodeMetrics); each episode's messages come
-    in order, the episodes' interleaved as they run (episodes start in order). `stop` is
+    in order, the episodes' interleaved as they run (episodes start in order). Under a
+    shield the metrics count its overrides and the pursuers' decisions. `stop` is
     asked before every step: when it answers true the run ends there, its episodes unended.
     """
     seeds = np.asarray(seeds, np.int64)
+    acting = acting or Acting()
     world = World(scenario, num_envs=min(envs, len(seeds)))
     rollout = Rollout(world, seeds)
+    overrides, decisions = np.zeros(len(seeds), np.int64), np.zeros(len(seeds), np.int64)  # per episode
     while not rollout.finished:
         if stop is not None and stop():
             return
@@ -84,13 +92,20 @@ def batch_steps(
         if record:
             for env in np.flatnonzero(world.state.steps == 0):
                 yield "step", int(turn.episodes[env]), StepRecord(step=0, state=snapshot(world.state, env))
-        output = policy.evaluate(turn.observation.rows(turn.rows))
+        output = acting.act(policy, turn.observation.rows(turn.rows), scenario.params)
         check_finite_output(policy, output, turn, world, seeds)
+        if output.overridden is not None:
+            episode_of_row = turn.episodes[turn.rows // scenario.pursuers]
+            np.add.at(overrides, episode_of_row, output.overridden)
+            np.add.at(decisions, episode_of_row, 1)
         step = rollout.step(output.actions)
         if record:
             yield from _step_records(turn, step, output, world)
         for env, metrics in step.outcomes.items():
-            yield "end", int(turn.episodes[env]), metrics
+            j = int(turn.episodes[env])
+            if acting.shield is not None:
+                metrics = dataclasses.replace(metrics, shield_overrides=int(overrides[j]), decisions=int(decisions[j]))
+            yield "end", j, metrics
 
 
 def _step_records(turn: Turn, step: RolloutStep, output: PolicyOutput, world: World) -> Iterator[Message]:
@@ -104,6 +119,7 @@ def _step_records(turn: Turn, step: RolloutStep, output: PolicyOutput, world: Wo
             decided=turn.rows[rows] - n * env,
             target_weights=None if output.target_weights is None else output.target_weights[rows],
             info=StepInfo.of(step.result, env),
+            overridden=None if output.overridden is None else output.overridden[rows],
         )
 
 
@@ -112,11 +128,12 @@ def run_episode(
     scenario: Scenario,
     seed: int,
     on_step: Callable[[StepRecord], None] | None = None,
+    acting: Acting | None = None,
 ) -> EpisodeMetrics:
-    """One episode of `Simulator(scenario, seed)` (`batch_steps` of one seed), every
-    StepRecord handed to `on_step` (step 0 after reset, then each step) as it is taken;
-    returns the episode's metrics."""
-    for kind, _, payload in batch_steps(policy, scenario, [seed], record=on_step is not None):
+    """One episode of `Simulator(scenario, seed)` (`batch_steps` of one seed, acting by
+    `acting`), every StepRecord handed to `on_step` (step 0 after reset, then each step) as
+    it is taken; returns the episode's metrics."""
+    for kind, _, payload in batch_steps(policy, scenario, [seed], record=on_step is not None, acting=acting):
         if kind == "end":
             return payload
         on_step(payload)

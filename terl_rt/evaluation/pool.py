@@ -68,7 +68,8 @@ class LocalBackend:
             for batch in parts:
                 spec = specs[batch[0]]
                 seeds = [specs[number].seed for number in batch]
-                for kind, j, payload in batch_steps(policies[spec.policy], spec.scenario, seeds, record, self.envs):
+                for kind, j, payload in batch_steps(policies[spec.policy], spec.scenario, seeds, record, self.envs,
+                                                    acting=spec.acting):
                     deliver(kind, batch[j], payload)
             return
         _run_in_workers(policies, specs, parts, min(self.workers, len(parts)), self.threads, self.envs, record,
@@ -179,7 +180,7 @@ def _run_in_workers(
     models = tuple((str(policy.path), policy.model) for policy in policies)
     todo = deque(
         (batch, specs[batch[0]].policy, specs[batch[0]].scenario, [specs[number].seed for number in batch], envs,
-         record)
+         record, specs[batch[0]].acting)
         for batch in parts
     )
     started: list[_Worker] = []

@@ -36,6 +36,7 @@ from ray.exceptions import RayError, RayTaskError
 from terl_rt.evaluation.play import BATCH_ENVS, batch_steps, check_envs
 from terl_rt.evaluation.runs import BackendError, Deliver, EpisodeSpec, batches, raise_stop, stop_signals_as_flag
 from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.safety.acting import Acting
 from terl_rt.sim.scenario import Scenario
 
 EPISODE_RETRIES = 3
@@ -72,10 +73,10 @@ def _worker_policy(ref: _PolicyRef) -> OnnxPolicy:
     return _worker_policies[key]
 
 
-def batch_task(policy: _PolicyRef, scenario: Scenario, seeds: list[int], record: bool, envs: int):
-    """A batch of episodes as a Ray generator task: the messages of `batch_steps`, (kind,
-    j, payload) with j the episode's index into `seeds`."""
-    yield from batch_steps(_worker_policy(policy), scenario, seeds, record, envs)
+def batch_task(policy: _PolicyRef, scenario: Scenario, seeds: list[int], record: bool, envs: int, acting: Acting):
+    """A batch of episodes as a Ray generator task: the messages of `batch_steps` (acting by
+    `acting`), (kind, j, payload) with j the episode's index into `seeds`."""
+    yield from batch_steps(_worker_policy(policy), scenario, seeds, record, envs, acting=acting)
 
 
 class RayBackend:
@@ -129,7 +130,8 @@ class RayBackend:
             for batch in itertools.islice(waiting, self.workers - len(streams)):
                 spec = specs[batch[0]]
                 seeds = [specs[number].seed for number in batch]
-                streams[self._task.remote(refs[spec.policy], spec.scenario, seeds, record, self.envs)] = [batch, len(batch)]
+                task = self._task.remote(refs[spec.policy], spec.scenario, seeds, record, self.envs, spec.acting)
+                streams[task] = [batch, len(batch)]
 
         # Installed after ray.init (in __init__), so that Ctrl-C, SIGTERM and SIGHUP reach
         # this flag rather than Ray's own handlers.

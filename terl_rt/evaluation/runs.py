@@ -28,13 +28,15 @@ from terl_rt.logs.format import StepRecord
 from terl_rt.logs.held import HeldEpisodes
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 
 
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One episode to run: `Simulator(scenario, seed)` driven by policy number `policy` of the run."""
+    """One episode to run: `Simulator(scenario, seed)` driven by policy number `policy` of the
+    run, acting by `acting` (terl_rt.safety.acting)."""
 
     policy: int
     """index into the run's policies."""
@@ -42,11 +44,13 @@ class EpisodeSpec:
     seed: int
     index: int
     """the episode's number in its evaluation (its seed is the evaluation's seed + index)."""
+    acting: Acting = Acting()
+    """how the policy's outputs become actions: greedy (the default), risk-aware, shielded."""
 
 
 def batches(specs: Sequence[EpisodeSpec], parts: int) -> list[list[int]]:
     """The spec numbers in batches, each run in one World (terl_rt.evaluation.play.batch_steps):
-    every run of consecutive specs with the same policy and the same Scenario object is
+    every run of consecutive specs with the same policy, acting rule and Scenario object is
     split into at most `parts` batches, its k-th spec going to batch k mod parts (so that
     the episodes running at any time are close in spec order). Batches come in the order
     of their first spec."""
@@ -54,7 +58,7 @@ def batches(specs: Sequence[EpisodeSpec], parts: int) -> list[list[int]]:
     start = 0
     for number in range(1, len(specs) + 1):
         if number < len(specs) and specs[number].policy == specs[start].policy \
-                and specs[number].scenario is specs[start].scenario:
+                and specs[number].acting == specs[start].acting and specs[number].scenario is specs[start].scenario:
             continue
         group = range(start, number)
         out += [list(group[part::parts]) for part in range(min(parts, len(group)))]
@@ -79,7 +83,7 @@ class Backend(Protocol):
 
     def run(self, policies: Sequence[OnnxPolicy], specs: Sequence[EpisodeSpec], record: bool,
             deliver: Deliver) -> None:
-        """Run every spec with `policies[spec.policy]`, in the batches of `batches(specs,
+        """Run every spec with `policies[spec.policy]` acting by `spec.acting`, in the batches of `batches(specs,
         workers)`, and call `deliver` in this thread for each message as it arrives (steps
         only when `record`). Returns once every spec has ended; interrupted or failed, it
         first delivers what has already arrived, then raises."""

@@ -269,3 +269,50 @@ def _cpu_s() -> float:
     """s: CPU time (user + system) of this process and of the children it has waited for."""
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+@dataclass(frozen=True)
+class ActingCost:
+    """CPU time per evaluation step of one acting rule (`acting_costs`)."""
+
+    acting: str
+    """the rule's label ("" for the greedy rule, the paper's)."""
+    steps: int
+    """timed batch steps (each advances every environment of the batch)."""
+    decisions: int
+    """pursuer-steps decided in them."""
+    cpu_ms_per_step: float
+    """ms of CPU time (this process) per batch step: policy, rule and simulator together."""
+    ratio: float
+    """cpu_ms_per_step over the first rule's."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def acting_costs(policy, scenario: Scenario, actings: Sequence, steps: int = 50, envs: int = BATCH_ENVS,
+                 seed: int = 0, repeat: int = 1) -> list[ActingCost]:
+    """The CPU cost per evaluation step of each acting rule of `actings`
+    (terl_rt.safety.acting.Acting): `steps` batch steps of `envs` environments of `scenario`
+    from `seed` (episodes that end restart), as `terl-rt eval` steps them, after SIM_WARMUP
+    untimed ones; the rules take turns, `repeat` rounds, each one's least CPU time counts.
+    The rules' episodes part ways once the shield acts, so their rows differ a little."""
+    best = [math.inf] * len(actings)
+    decided = [0] * len(actings)
+    for _ in range(repeat):
+        for k, acting in enumerate(actings):
+            rollout = Rollout(World(scenario, num_envs=envs, seed=seed))
+            decisions, cpu = 0, 0.0
+            for step in range(SIM_WARMUP + steps):
+                start = time.process_time()
+                turn = rollout.turn()
+                rollout.step(acting.act(policy, turn.observation.rows(turn.rows), scenario.params).actions)
+                if step >= SIM_WARMUP:
+                    cpu += time.process_time() - start
+                    decisions += len(turn.rows)
+            best[k], decided[k] = min(best[k], cpu), decisions
+    return [
+        ActingCost(acting=acting.label, steps=steps, decisions=decided[k], cpu_ms_per_step=1e3 * best[k] / steps,
+                   ratio=best[k] / best[0])
+        for k, acting in enumerate(actings)
+    ]

@@ -19,6 +19,7 @@ from terl_rt.evaluation.episodes import Progress, ScenarioResult, scenario_resul
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import CI_METRICS, format_interval
 from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
 
@@ -51,10 +52,14 @@ def run_sweep(
     backend: Backend,
     max_steps: int | None = None,
     progress: Progress | None = None,
+    acting: Acting = Acting(),
 ) -> Sweep:
     """Evaluate every policy on every scenario, `episodes` episodes each (episode k with
-    seed + k), as one run on `backend`. max_steps overrides the scenarios' step limits;
-    `progress` hears of each episode (its number in the sweep) in the sweep's order."""
+    seed + k), as one run on `backend`, every policy acting by `acting` (its rows name it).
+    max_steps overrides the scenarios' step limits; `progress` hears of each episode (its
+    number in the sweep) in the sweep's order."""
+    for policy in policies:
+        acting.check(policy)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     if not policies or not scenarios:
@@ -62,7 +67,7 @@ def run_sweep(
     if max_steps is not None:
         scenarios = [scenario.replace(max_steps=max_steps) for scenario in scenarios]
     groups = [(p, scenario) for p in range(len(policies)) for scenario in scenarios]
-    specs = [EpisodeSpec(p, scenario, seed + k, k) for p, scenario in groups for k in range(episodes)]
+    specs = [EpisodeSpec(p, scenario, seed + k, k, acting) for p, scenario in groups for k in range(episodes)]
     per_episode: list[EpisodeMetrics] = []
     done_s: list[float] = []
     start = time.perf_counter()
@@ -78,7 +83,7 @@ def run_sweep(
     rows = tuple(
         SweepRow(
             policy=policies[p].name, policy_sha256=policies[p].sha256, policy_path=str(policies[p].path),
-            result=scenario_result(scenario, seed, per_episode[g * episodes:(g + 1) * episodes], done_s[g]),
+            result=scenario_result(scenario, seed, per_episode[g * episodes:(g + 1) * episodes], done_s[g], acting),
         )
         for g, (p, scenario) in enumerate(groups)
     )
@@ -90,9 +95,11 @@ TABLE_COLUMNS = (
     "success_rate", "success_rate_ci_low", "success_rate_ci_high",
     "travel_time_s_mean", "travel_time_s_std", "travel_time_s_ci_low", "travel_time_s_ci_high",
     "collision_ratio_mean", "collision_ratio_ci_low", "collision_ratio_ci_high",
-    "steps_mean",
+    "steps_mean", "acting", "shield_overrides_per_decision",
 )
-"""Columns of the sweep's CSV table, one row per policy and scenario (95 % bootstrap intervals)."""
+"""Columns of the sweep's CSV table, one row per policy and scenario (95 % bootstrap intervals);
+`acting` names rows that did not act greedily (empty for the paper's rule), the shield's
+overrides a pursuer-step are empty without it."""
 
 
 def table_rows(sweep: Sweep) -> list[dict]:
@@ -107,7 +114,8 @@ def table_rows(sweep: Sweep) -> list[dict]:
             "episodes": result.episodes, "seed": result.seed, "max_steps": result.max_steps,
             "success_rate": result.success_rate, "travel_time_s_mean": result.travel_time_s_mean,
             "travel_time_s_std": result.travel_time_s_std, "collision_ratio_mean": result.collision_ratio_mean,
-            "steps_mean": result.steps_mean,
+            "steps_mean": result.steps_mean, "acting": result.acting.label,
+            "shield_overrides_per_decision": result.shield_overrides_per_decision,
         }
         for name in CI_METRICS:
             flat[f"{name}_ci_low"], flat[f"{name}_ci_high"] = intervals[name]
@@ -138,7 +146,7 @@ def sweep_markdown(sweep: Sweep) -> str:
         result = row.result
         ci = result.ci95()
         lines.append(
-            f"| {row.policy} | {Path(row.policy_path).name} | `{row.policy_sha256[:12]}` | {result.name} "
+            f"| {row.policy}{f' [{result.acting.label}]' if result.acting.label else ''} | {Path(row.policy_path).name} | `{row.policy_sha256[:12]}` | {result.name} "
             f"| {result.episodes} "
             f"| {result.success_rate:.2f} {format_interval(ci['success_rate'], 2)} "
             f"| {result.travel_time_s_mean:.1f} ± {result.travel_time_s_std:.1f} {format_interval(ci['travel_time_s'], 1)} "

@@ -6,7 +6,7 @@ it gets as a file descriptor. What goes over it, each message pickled:
 
 - parent -> worker: first `(models, threads)`, the policies of the run as (path, ONNX
   bytes) and onnxruntime's threads; then one task at a time, `(numbers, policy, scenario,
-  seeds, envs, record)`, or None: stop.
+  seeds, envs, record, acting)`, or None: stop.
 - worker -> parent: ("step", number, StepRecord) and ("end", number, EpisodeMetrics) as
   the batch takes them, ("idle", None, None) when it is done, or ("error", None, exception)
   when it failed (then it stops).
@@ -56,8 +56,9 @@ def serve(fd: int, parent: int) -> None:
         models, threads = connection.recv()
         policies = [OnnxPolicy(path, threads=threads, model=model) for path, model in models]
         while (task := connection.recv()) is not None:
-            numbers, policy, scenario, seeds, envs, record = task
-            for kind, j, payload in batch_steps(policies[policy], scenario, seeds, record, envs, connection.poll):
+            numbers, policy, scenario, seeds, envs, record, acting = task
+            for kind, j, payload in batch_steps(policies[policy], scenario, seeds, record, envs, connection.poll,
+                                                acting):
                 connection.send((kind, numbers[j], payload))
             connection.send(("idle", None, None))
     except (EOFError, BrokenPipeError, ConnectionResetError):

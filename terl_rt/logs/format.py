@@ -19,7 +19,9 @@ Topics (log time = episode start + step * 0.5 s, in ns):
   less the derived `pursuer_collided`), floats written with Python's repr, so they read
   back exactly;
 - `/actions`: the [N] pursuer action indices fed to the simulator for this step
-  (0 for collided pursuers), which pursuers decided, and the [M] evader actions;
+  (0 for collided pursuers), which pursuers decided, the [M] evader actions and, in runs
+  under the shield, `shield_overrode`: [n] booleans, one per deciding pursuer, true where
+  the shield replaced the policy's action (terl_rt.safety.shield);
 - `/target_weights`: [n, E] target weights of the n deciding pursuers (policies with
   target selection only);
 - `/rewards`: [N] rewards and their terms;
@@ -112,8 +114,10 @@ SCHEMAS: dict[str, TopicSchema] = {
         {**_HEAD, **{f.key: {"type": "array"} for f in LOGGED_FIELDS if f.key not in _HEAD}},
     ),
     TOPIC_ACTIONS: _object_schema(
-        "terl.Actions", "Actions of the step: pursuer [N] as fed to the simulator, evader [M]",
-        {**_HEAD, "pursuer": _INTEGERS, "decided": _INTEGERS, "evader": _INTEGERS},
+        "terl.Actions", "Actions of the step: pursuer [N] as fed to the simulator, evader [M]; under a shield, "
+        "shield_overrode [n]: the shield replaced the action of the deciding pursuer",
+        {**_HEAD, "pursuer": _INTEGERS, "decided": _INTEGERS, "evader": _INTEGERS,
+         "shield_overrode": {"type": "array", "items": {"type": "boolean"}}},
     ),
     TOPIC_TARGET_WEIGHTS: _object_schema(
         "terl.TargetWeights", "Target weights [n, E] of the pursuers that decided the step",
@@ -148,3 +152,6 @@ class StepRecord:
     """[n, E] float32 of the deciding pursuers, or None."""
     info: StepInfo | None = None
     """What the step did (None at step 0)."""
+    overridden: np.ndarray | None = None
+    """[n] bool: the shield overrode the policy's action of each deciding pursuer (None
+    without a shield, and at step 0)."""

@@ -5,7 +5,8 @@ steps of an episode, so each message replaces the previous one entity by entity:
 
 - `arena`: the boundary [0, W] x [0, H] as a line loop, with a status text;
 - `pursuer/<i>`: a 2.0 x 1.0 m hull (cube) turned to the heading, plus a heading
-  arrow; collided pursuers stay where they crashed, greyed out;
+  arrow; collided pursuers stay where they crashed, greyed out; a pursuer whose action
+  the shield overrode in the step is amber, with metadata `shield_overrode` true;
 - `evader/<j>`: a sphere of the robot radius, red while free, green once encircled;
 - `obstacle/<k>`: a cylinder of the obstacle's radius;
 - `vortex/<v>`: a flat disc at the core (r0) and an arrow along its rotation,
@@ -52,6 +53,7 @@ _HULL = (2.0, 1.0, 0.6)
 COLORS: dict[str, tuple[float, float, float, float]] = {
     "pursuer": (0.16, 0.42, 0.85, 1.0),
     "pursuer_collided": (0.55, 0.55, 0.55, 0.6),
+    "pursuer_shielded": (0.96, 0.62, 0.04, 1.0),
     "evader": (0.86, 0.18, 0.18, 1.0),
     "evader_encircled": (0.15, 0.68, 0.30, 1.0),
     "obstacle": (0.35, 0.30, 0.26, 1.0),
@@ -126,6 +128,7 @@ def scene_update(
     core_radius: float,
     status: str = "",
     previous_ids: Iterable[str] | None = None,
+    shielded: Iterable[int] = (),
 ) -> dict:
     """The scene of one step as a foxglove.SceneUpdate JSON object.
 
@@ -133,8 +136,10 @@ def scene_update(
     message's log time (ns); robot_radius and core_radius in m; status a line of
     text shown above the arena. previous_ids: the entity ids of the scene before in
     the same episode, whose missing ones are deleted by id; None for the first scene
-    of an episode, which deletes every entity on the topic first (type ALL).
+    of an episode, which deletes every entity on the topic first (type ALL). shielded: the
+    pursuers whose action the shield overrode in the step.
     """
+    overrode = set(shielded)
     stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
     width, height = arena
     corners = [(0.0, 0.0), (width, 0.0), (width, height), (0.0, height)]
@@ -155,9 +160,10 @@ def scene_update(
     for i, ((x, y), theta, active) in enumerate(
         zip(state["pursuer_xy"].tolist(), state["pursuer_theta"].tolist(), state["pursuer_active"].tolist())
     ):
-        kind = "pursuer" if active else "pursuer_collided"
+        kind = "pursuer_shielded" if i in overrode else "pursuer" if active else "pursuer_collided"
+        metadata = {"active": str(active).lower(), **({"shield_overrode": "true"} if i in overrode else {})}
         entities.append(_entity(
-            f"pursuer/{i}", stamp, {"active": str(active).lower()},
+            f"pursuer/{i}", stamp, metadata,
             cubes=[{"pose": _pose_at(x, y, _HULL[2] / 2, theta), "size": _vec(*_HULL), "color": _rgba(kind)}],
             arrows=[_arrow(x, y, theta, 2.5, kind, z=_HULL[2])] if active else [],
         ))

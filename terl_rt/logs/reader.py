@@ -137,6 +137,15 @@ class LoggedStep:
         return None if payload is None else np.asarray(payload["pursuer"], np.int64)
 
     @property
+    def shield_overrode(self) -> np.ndarray | None:
+        """[n] bool, one per pursuer that decided (/actions `decided`): the shield overrode its
+        action in this step; None at step 0 and in logs of runs without the shield."""
+        payload = self.payload(TOPIC_ACTIONS)
+        if payload is None or "shield_overrode" not in payload:
+            return None
+        return np.asarray(payload["shield_overrode"], bool)
+
+    @property
     def evader_actions(self) -> np.ndarray | None:
         """[M] int64 the evaders took in this step (None at step 0)."""
         payload = self.payload(TOPIC_ACTIONS)
@@ -219,6 +228,20 @@ class EpisodeLogReader:
             for step in self.steps(episode.number):
                 for topic in step.messages:
                     counts[topic] += 1
+        return counts
+
+    def shield_overrides(self, number: int) -> np.ndarray | None:
+        """[N] int64: the steps of episode `number` in which the shield overrode each pursuer's
+        action, counted from /actions; None for an episode run without the shield."""
+        counts = None
+        for step in self.steps(number):
+            overrode = step.shield_overrode
+            if overrode is None:
+                continue
+            if counts is None:
+                counts = np.zeros(self.episode(number).scenario.pursuers, np.int64)
+            decided = np.asarray(step.payload(TOPIC_ACTIONS)["decided"], np.int64)
+            np.add.at(counts, decided[overrode], 1)
         return counts
 
     # --- steps

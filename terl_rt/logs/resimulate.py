@@ -100,8 +100,11 @@ def _compare_state(step: LoggedStep, simulated: dict[str, np.ndarray]) -> Mismat
 
 def _comparable(simulated: EpisodeMetrics, recorded: EpisodeMetrics) -> EpisodeMetrics:
     """`simulated` as a log recorded it: without the return where the log has none (logs
-    written before terl-rt recorded returns)."""
-    return dataclasses.replace(simulated, team_return=None) if recorded.team_return is None else simulated
+    written before terl-rt recorded returns), with the shield's counts of the log (they
+    come from the acting rule, not the world; the actions they led to are what is checked)."""
+    if recorded.team_return is None:
+        simulated = dataclasses.replace(simulated, team_return=None)
+    return dataclasses.replace(simulated, shield_overrides=recorded.shield_overrides, decisions=recorded.decisions)
 
 
 def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:

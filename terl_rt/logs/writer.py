@@ -95,6 +95,13 @@ def _events(record: StepRecord) -> list[dict]:
     return events
 
 
+def _shielded(record: StepRecord) -> list[int]:
+    """The pursuers whose action the shield overrode in the step (none at step 0 or unshielded)."""
+    if record.overridden is None:
+        return []
+    return np.asarray(record.decided)[np.asarray(record.overridden, bool)].tolist()
+
+
 def _state_payload(number: int, state: Mapping[str, np.ndarray]) -> dict:
     payload: dict[str, Any] = {"episode": number}
     for f in LOGGED_FIELDS:
@@ -224,17 +231,20 @@ class EpisodeLogWriter:
             )
             scene = scene_update(
                 state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
-                previous_ids=None if record.step == 0 else episode.scene_ids,
+                previous_ids=None if record.step == 0 else episode.scene_ids, shielded=_shielded(record),
             )
             messages.append((TOPIC_WORLD, scene))
         info = record.info
         if info is not None:
-            messages.append((TOPIC_ACTIONS, {
+            actions = {
                 **head,
                 "pursuer": np.asarray(record.pursuer_actions).tolist(),
                 "decided": np.asarray(record.decided).tolist(),
                 "evader": info.evader_actions.tolist(),
-            }))
+            }
+            if record.overridden is not None:
+                actions["shield_overrode"] = np.asarray(record.overridden, bool).tolist()
+            messages.append((TOPIC_ACTIONS, actions))
             if record.target_weights is not None:
                 messages.append((TOPIC_TARGET_WEIGHTS, {
                     **head,

@@ -233,10 +233,12 @@ def render_markdown(
     metadata = policy_info.get("metadata") or {}
     released = any(scale_group(r.name) == SMALL_RELEASED for r in results)
     name = policy_info.get("name", "unknown policy")
+    acting = results[0].acting
     lines = [
-        f"# {name} against the TERL paper",
+        f"# {shown_name(policy_info, results)} against the TERL paper",
         "",
         f"- policy: `{name}`" + (f" (`{policy_info['path']}`)" if policy_info.get("path") else ""),
+        *([f"- acting: **{acting.label}** (docs/safety.md), not the paper's greedy rule"] if acting.label else []),
         f"- sha256: `{str(policy_info.get('sha256', ''))[:12]}`",
         f"- training steps: {training_steps_text(metadata.get(META_TRAINING_STEPS))}"
         + (f", trained on {metadata[META_TRAINED_ON]}" if metadata.get(META_TRAINED_ON) else ""),
@@ -364,7 +366,7 @@ def write_report(
     require_matplotlib()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    title = f"{policy_info.get('name', 'policy')} (sha256 {str(policy_info.get('sha256', ''))[:12]}) against the TERL paper"
+    title = f"{shown_name(policy_info, results)} (sha256 {str(policy_info.get('sha256', ''))[:12]}) against the TERL paper"
     figure = plot_results(results, out_dir / FIGURE_NAME, title=title)
     markdown = out_dir / MARKDOWN_NAME
     markdown.write_text(render_markdown(results, policy_info, command, date or datetime.now(timezone.utc)))
@@ -372,6 +374,13 @@ def write_report(
 
 
 # --- helpers ------------------------------------------------------------------------
+
+
+def shown_name(policy_info: Mapping, results: Sequence[ScenarioResult]) -> str:
+    """The policy's name as the page and the figure show it: with how it acted, in brackets,
+    when that was not the paper's greedy rule (a shielded run is never taken for a plain one)."""
+    label = results[0].acting.label if results else ""
+    return policy_info.get("name", "policy") + (f" [{label}]" if label else "")
 
 
 def ci_text(intervals: Mapping, name: str, digits: int) -> str:

@@ -19,7 +19,6 @@ import json
 import logging
 import os
 import shutil
-from dataclasses import fields
 from pathlib import Path
 
 from terl_rt.evaluation.episodes import ScenarioResult, scenario_result
@@ -32,7 +31,8 @@ logger = logging.getLogger(__name__)
 SAVED_SCHEMA = 1
 """Version of the saved files' fields: a file of another version is not read."""
 
-_METRIC_FIELDS = frozenset(field.name for field in fields(EpisodeMetrics))
+_METRIC_FIELDS = frozenset(EpisodeMetrics(False, 0, 0.0, 0.0, 0, 0).to_dict())
+"""The fields a saved episode has: a comparison's episodes run greedy, without the shield's counts."""
 
 
 class SavedResults:

@@ -26,7 +26,12 @@ from terl_rt.sim.observation import (  # the observation layout is the simulator
 )
 
 CONTRACT_VERSION = "1"
-"""The contract version this runtime reads."""
+"""The contract version this runtime reads. Revision 1.1 added the optional output
+`quantiles`; files with it keep `terl.contract` "1" (runtimes before it warn of an extra
+output and ignore it), files without it keep working (docs/policy.md)."""
+NUM_QUANTILES = 32
+"""K: the fixed quantile fractions tau_k = (k + 0.5) / K of the `quantiles` output and of
+`q_values`, their mean."""
 
 META_CONTRACT = "terl.contract"
 """Metadata key: contract version, "1"."""
@@ -115,8 +120,11 @@ INPUTS = (
 OUTPUTS = (
     TensorSpec("q_values", "float32", ("B", NUM_PURSUER_ACTIONS)),
     TensorSpec("target_weights", "float32", ("B", "E"), required=False),
+    TensorSpec("quantiles", "float32", ("B", NUM_QUANTILES, NUM_PURSUER_ACTIONS), required=False),
 )
-"""Contract outputs; target_weights only for models with target selection."""
+"""Contract outputs; target_weights only for models with target selection, quantiles
+[B, K, 9] (each action's return at the fractions tau_k, q_values their mean) only for
+models with a distributional (IQN) head that export them (contract revision 1.1)."""
 
 
 @dataclass(frozen=True)
@@ -184,6 +192,11 @@ class ContractReport:
     @property
     def has_target_weights(self) -> bool:
         return any(info.name == "target_weights" for info in self.outputs)
+
+    @property
+    def has_quantiles(self) -> bool:
+        """The model gives the optional `quantiles` output (contract revision 1.1)."""
+        return any(info.name == "quantiles" for info in self.outputs)
 
     def raise_for_refusal(self) -> None:
         """Raise ContractError with the first refusal's message, if any."""
@@ -346,10 +359,15 @@ def check_fixed_dims(info: TensorInfo, spec: TensorSpec, kind: str) -> str:
         if not isinstance(want, int):
             continue
         if isinstance(dim, int) and dim != want:
-            if spec.name == "q_values":
+            if spec.name in ("q_values", "quantiles") and axis == len(spec.dims) - 1:
                 raise ContractError(
-                    f"output 'q_values' has {dim} actions, the contract says {want} "
+                    f"output '{spec.name}' has {dim} actions, the contract says {want} "
                     "(one per entry of the pursuer action table)"
+                )
+            if spec.name == "quantiles":
+                raise ContractError(
+                    f"output 'quantiles' has {dim} quantile fractions, the contract says {want} "
+                    "(tau_k = (k + 0.5) / K, K = 32)"
                 )
             raise ContractError(
                 f"{kind} '{info.name}' has {dim} features on axis {axis}, the contract says "

@@ -21,6 +21,10 @@ Example (hold the returned acceleration and yaw rate for one 0.5 s decision step
     )
     print(decision.action, decision.acceleration, decision.yaw_rate)
     print(np.round(decision.q_values, 3), decision.target_weights)
+
+`decide(..., shield=True)` puts the choice under the shield and `risk="cvar:0.25"` acts on
+the CVaR of the policy's quantiles (terl_rt.safety, docs/safety.md);
+`decision.overridden` says whether the shield replaced the policy's action.
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from terl_rt.policy.contract import ContractError
+from terl_rt.safety.acting import Acting
+from terl_rt.safety.risk import Risk
+from terl_rt.safety.shield import Shield
 from terl_rt.sim.actions import PURSUER_ACTIONS
 from terl_rt.sim.geometry import Geometry
 from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
@@ -53,6 +60,8 @@ class Decision:
     target_weights: np.ndarray | None
     """[E] float32 preference over the evader slots (nearest first), or None when the
     model has no target selection."""
+    overridden: bool = False
+    """the shield replaced the action the policy chose (always False without a shield)."""
 
 
 MAX_ROWS = {"teammates": 1000, "evaders": 500, "obstacles": 500, "encircled": 500}
@@ -231,10 +240,15 @@ def decide(
     evader_slots: int = 8,
     params: WorldParams | None = None,
     encircled=None,
+    shield: Shield | bool | None = None,
+    risk: Risk | str | None = None,
 ) -> Decision:
     """The policy's action for one pursuer; arguments as in `observe`.
 
     policy: an `OnnxPolicy` (anything with its `evaluate`). Open it once and reuse it.
+    shield: True (the default `Shield`) or a Shield: the shield chooses among the actions
+    it keeps (terl_rt.safety.shield). risk: "cvar:ALPHA" or a Risk: act on the CVaR of the
+    policy's quantiles (ValueError for a policy without them).
     Raises TypeError for anything else as `policy` (a path among them), ContractError (a
     ValueError) when the policy outputs NaN or Inf, as `terl-rt eval` does, or fails
     inside onnxruntime (`PolicyRunError`).
@@ -244,10 +258,12 @@ def decide(
             "policy must be an opened policy such as OnnxPolicy(path), opened once and reused, "
             f"got {type(policy).__name__} {policy!r:.60}"
         )
+    acting = Acting.of(shield, risk)
+    acting.check(policy)
     observation = observe(
         ego_xy, ego_heading, ego_velocity, teammates, evaders, obstacles, evader_slots, params, encircled
     )
-    output = policy.evaluate(observation)
+    output = acting.act(policy, observation, WorldParams() if params is None else params)
     problem = output.first_non_finite()
     if problem is not None:
         name, _, bad = problem
@@ -263,4 +279,5 @@ def decide(
         yaw_rate=float(yaw_rate),
         q_values=output.q_values[0],
         target_weights=None if output.target_weights is None else output.target_weights[0],
+        overridden=output.overridden is not None and bool(output.overridden[0]),
     )

@@ -24,6 +24,7 @@ import onnxruntime as ort
 from terl_rt.policy.contract import (
     INPUTS,
     META_MODEL,
+    NUM_QUANTILES,
     ContractError,
     ContractReport,
     TensorInfo,
@@ -297,12 +298,20 @@ class PolicyOutput:
     """[..., E] float32 target preference per evader slot (0 on padding), or None
     for models without target selection."""
     actions: np.ndarray
-    """[...] int64: argmax of q_values (the first one on ties)."""
+    """[...] int64: argmax of q_values (the first one on ties), or what a shield or
+    risk-aware acting chose instead (terl_rt.safety)."""
+    quantiles: np.ndarray | None = None
+    """[..., K, 9] float32: each action's return at the fixed fractions tau_k = (k + 0.5) / K,
+    K = 32 (q_values their mean); None unless asked for from a policy that has them."""
+    overridden: np.ndarray | None = None
+    """[...] bool: the shield replaced the action the policy (or its risk-aware choice)
+    preferred (terl_rt.safety.shield); None without a shield."""
 
     def first_non_finite(self) -> tuple[str, int, float] | None:
-        """(output name, row, value) of the first NaN or Inf in q_values, then in target_weights
-        (row: its index along the first axis), or None when every value is finite."""
-        for name, values in (("q_values", self.q_values), ("target_weights", self.target_weights)):
+        """(output name, row, value) of the first NaN or Inf in q_values, then in target_weights,
+        then in quantiles (row: its index along the first axis), or None when every value is finite."""
+        for name, values in (("q_values", self.q_values), ("target_weights", self.target_weights),
+                             ("quantiles", self.quantiles)):
             if values is None or np.isfinite(values).all():
                 continue
             where = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
@@ -385,6 +394,11 @@ class OnnxPolicy:
         return self._report.has_target_weights
 
     @property
+    def has_quantiles(self) -> bool:
+        """The file gives the optional output `quantiles` (contract revision 1.1)."""
+        return self._report.has_quantiles
+
+    @property
     def sha256(self) -> str:
         """Hex SHA-256 of the file as loaded."""
         return self._sha256
@@ -399,15 +413,19 @@ class OnnxPolicy:
         """The contract check run at load (warnings included)."""
         return self._report
 
-    def evaluate(self, observation: Observation | Mapping[str, np.ndarray]) -> PolicyOutput:
-        """Q-values, target weights and greedy actions for every row of `observation`.
+    def evaluate(self, observation: Observation | Mapping[str, np.ndarray], quantiles: bool = False) -> PolicyOutput:
+        """Q-values, target weights and greedy actions for every row of `observation`, and
+        with `quantiles` the quantiles [..., K, 9] too (ValueError for a file without them).
 
         The rows go to onnxruntime in calls of at most CALL_ROWS rows, leading dims
         flattened and restored; a row's outputs are the same, bit for bit, whatever rows
-        share its call.
+        share its call, and whether the quantiles are asked for or not.
         Raises ValueError for an observation that breaks the layout (see
         `observation_inputs`).
         """
+        if quantiles and not self.has_quantiles:
+            raise ValueError(f"policy {self.name} ({self._path}) has no quantiles output (contract revision 1.1)")
+        names = self._output_names + ["quantiles"] * quantiles
         inputs, leading = observation_inputs(observation)
         rows = math.prod(leading)
         num_evaders = inputs["evaders"].shape[-2]
@@ -418,11 +436,12 @@ class OnnxPolicy:
                     np.zeros(leading + (num_evaders,), np.float32) if self.has_target_weights else None
                 ),
                 actions=np.zeros(leading, np.int64),
+                quantiles=np.zeros(leading + (NUM_QUANTILES, NUM_PURSUER_ACTIONS), np.float32) if quantiles else None,
             )
 
         flat = {name: array.reshape((rows,) + array.shape[len(leading):]) for name, array in inputs.items()}
         results = [np.concatenate(parts) for parts in zip(*(
-            self._run({name: array[part] for name, array in flat.items()})
+            self._run({name: array[part] for name, array in flat.items()}, names)
             for part in _calls(rows)
         ))]
         q_values = self._checked_output("q_values", results[0], (rows, NUM_PURSUER_ACTIONS))
@@ -430,14 +449,19 @@ class OnnxPolicy:
         if self.has_target_weights:
             target_weights = self._checked_output("target_weights", results[1], (rows, num_evaders))
             target_weights = target_weights.reshape(leading + (num_evaders,))
+        quantile_values = None
+        if quantiles:
+            shape = (NUM_QUANTILES, NUM_PURSUER_ACTIONS)
+            quantile_values = self._checked_output("quantiles", results[-1], (rows,) + shape).reshape(leading + shape)
         actions = np.argmax(q_values, axis=-1).astype(np.int64)
         return PolicyOutput(
             q_values=q_values.reshape(leading + (NUM_PURSUER_ACTIONS,)),
             target_weights=target_weights,
             actions=actions.reshape(leading),
+            quantiles=quantile_values,
         )
 
-    def _run(self, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+    def _run(self, feed: dict[str, np.ndarray], names: list[str]) -> list[np.ndarray]:
         """One onnxruntime call on `feed`'s rows. A single row goes in twice: onnxruntime's
         one-row kernels round differently from its batched ones, and a row's result must not
         depend on the rows beside it (an episode evaluated alone or batched with others
@@ -447,7 +471,7 @@ class OnnxPolicy:
             feed = {name: np.concatenate([array, array]) for name, array in feed.items()}
         feed = {name: np.ascontiguousarray(array) for name, array in feed.items()}
         try:
-            results = self._session.run(self._output_names, feed)
+            results = self._session.run(names, feed)
         except Exception as error:  # onnxruntime raises its own types (Fail, RuntimeException, ...)
             raise _run_failure(self, len(feed["ego"]), error) from None
         return [result[:rows] for result in results]

@@ -28,9 +28,18 @@ class EpisodeMetrics:
     team_return: float | None = None
     """the episode's return: the sum of every pursuer's reward over its steps (None in
     metrics read from logs written before terl-rt recorded it)."""
+    shield_overrides: int | None = None
+    """pursuer-steps in which the shield replaced the policy's action (terl_rt.safety.shield);
+    None for an episode run without the shield."""
+    decisions: int | None = None
+    """pursuer-steps decided (active pursuers, summed over steps), under the shield; else None."""
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The fields by name; the shield's two only for an episode run under it."""
+        out = asdict(self)
+        if self.shield_overrides is None:
+            del out["shield_overrides"], out["decisions"]
+        return out
 
 
 def episode_metrics(state: WorldState, env: int, params: WorldParams, team_return: float | None = None) -> EpisodeMetrics:

@@ -75,6 +75,8 @@ def test_exported_inputs_and_outputs_follow_contract(exported, name):
     expected = {"q_values": ("tensor(float)", ["B", 9])}
     if model.has_target_selection:
         expected["target_weights"] = ("tensor(float)", ["B", "E"])
+    if model.distributional:
+        expected["quantiles"] = ("tensor(float)", ["B", 32, 9])
     assert outputs == expected
 
 
@@ -177,11 +179,36 @@ def test_shipped_policy_of_the_older_graph_reexports_with_the_same_outputs(tmp_p
     source = Path(__file__).parents[1] / "data" / "terl-no-ts-opset17.onnx"
     target = export.reexport_onnx(source, tmp_path / "terl-no-ts.onnx")
     feed = {key: value.numpy() for key, value in example_inputs(6, 5, 8, 5, partial_mask=True).items()}
-    old, new = (ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, feed)
+    names = [output.name for output in ort.InferenceSession(str(source)).get_outputs()]
+    old, new = (ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(names, feed)
                 for path in (source, target))
-    assert len(new) == len(old)
     for got, expected in zip(new, old):
         np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("name", ALL_MODELS)
+def test_a_distributional_head_exports_its_quantiles_and_dqn_none(exported, name):
+    model, path = exported(name)
+    names = [output.name for output in ort.InferenceSession(str(path)).get_outputs()]
+    assert ("quantiles" in names) == model.distributional
+
+
+def test_with_quantiles_adds_the_output_and_leaves_q_values_bit_for_bit(tmp_path):
+    source = Path(__file__).parents[1] / "data" / "terl-no-ts-opset17.onnx"  # an export without quantiles
+    target = export.with_quantiles(source, tmp_path / "with.onnx")
+    feed = {key: value.numpy() for key, value in example_inputs(6, 5, 8, 5, partial_mask=True).items()}
+    before, after = (ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]) for path in (source, target))
+    q_values, quantiles = after.run(["q_values", "quantiles"], feed)
+    assert np.array_equal(q_values, before.run(["q_values"], feed)[0]) and quantiles.shape == (6, 32, 9)
+    assert read_metadata(target) == read_metadata(source)
+    with pytest.raises(ValueError, match="has the quantiles output already"):
+        export.with_quantiles(target, tmp_path / "twice.onnx")
+
+
+def test_with_quantiles_refuses_a_network_without_a_distributional_head(exported, tmp_path):
+    _, path = exported("dqn")
+    with pytest.raises(ValueError, match="no distributional head"):
+        export.with_quantiles(path, tmp_path / "dqn.onnx")
 
 
 def test_export_command_reexports_an_onnx_policy_and_refuses_a_missing_one(exported, tmp_path, capsys):

@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# The paired measurement of docs/safety.md ("Measured"): the same seeds with and without the
+# shield, with and without risk-aware acting at three ALPHA, and both; the shipped default and
+# one seed of each comparison method; the paper suite at 100 episodes and 160 / 240 / 400
+# pursuers at 10; then the CPU cost per step. From the repository root:
+#
+#   scripts/safety-measurement.sh [OUT]        # OUT default runs/safety; WORKERS default every core
+#
+# Each run is a `terl-rt sweep` into OUT/<policy>/<rule>/<worlds> (sweep.md, sweep.csv and
+# sweep.json, every episode), so a run cut off is repeated alone. Rules: plain, shield,
+# cvar-A and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles).
+set -euo pipefail
+out=${1:-runs/safety}
+workers=${WORKERS:-$(nproc)}
+mkdir -p "$out"
+python3 -c "
+from terl_rt.evaluation.speed import scaling_scenario
+for n in (160, 240, 400):
+    scaling_scenario(n).to_file('$out/scale-$n.json')
+"
+rules=("plain:" "shield:--shield")
+for alpha in 0.25 0.5 0.75; do
+    rules+=("cvar-$alpha:--risk cvar:$alpha" "shield-cvar-$alpha:--shield --risk cvar:$alpha")
+done
+has_quantiles() {
+    python3 -c "import sys; from terl_rt.policy.onnx_policy import OnnxPolicy; sys.exit(not OnnxPolicy('$1').has_quantiles)"
+}
+for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-re,terl-no-ts,iqn,mean,dqn}-seed-1.onnx; do
+    name=$(basename "$policy" .onnx)
+    for rule in "${rules[@]}"; do
+        label=${rule%%:*}
+        read -r -a options <<< "${rule#*:}"
+        if [[ $label == *cvar* ]] && ! has_quantiles "$policy"; then
+            continue
+        fi
+        python3 -m terl_rt sweep --policy "$policy" --suite paper --episodes 100 --seed 0 --workers "$workers" \
+            --threads 1 "${options[@]}" --out "$out/$name/$label/paper" --force
+        for n in 160 240 400; do
+            python3 -m terl_rt sweep --policy "$policy" --scenario-file "$out/scale-$n.json" --episodes 10 --seed 0 \
+                --workers "$workers" --threads 1 "${options[@]}" --out "$out/$name/$label/scale-$n" --force
+        done
+    done
+done
+python3 -m terl_rt bench shield --scenario large-80 --steps 200 --repeat 3 --risk cvar:0.25 --risk cvar:0.5 \
+    --risk cvar:0.75 --json > "$out/bench-shield.json"
