@@ -15,6 +15,7 @@ from terl_rt.cli.options import (
     address_option,
     backend_option,
     episodes_option,
+    evader_option,
     json_option,
     max_steps_option,
     open_policies,
@@ -67,6 +68,7 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
 @scenarios_option
 @scenario_file_option
 @suite_option
+@evader_option
 @episodes_option
 @seed_option
 @max_steps_option
@@ -81,8 +83,8 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
 @json_option
 @force_option
 def sweep_command(
-    policy_paths, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, threads,
-    out, as_json, force,
+    policy_paths, scenario_names, scenario_file, suite, evader, episodes, seed, max_steps, workers, backend, address,
+    threads, out, as_json, force,
 ) -> None:
     """Evaluate several policies on several scenarios, the same seeds each (episode k
     with seed + k), as one batch of episodes, and write one results table: DIR/sweep.md
@@ -99,7 +101,7 @@ def sweep_command(
       terl-rt sweep --policy policies/ --suite paper --backend ray --address auto --out sweep
     """
     out_dir = output_folder(out)
-    scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
+    scenarios = resolve_scenarios(scenario_names, scenario_file, suite, evader)
     policies = open_policies(policy_paths, threads=policy_threads(backend, workers, threads))
     inputs = [("--policy", policy.path) for policy in policies] + [("--scenario-file", scenario_file)]
     for name in TABLE_FILES:

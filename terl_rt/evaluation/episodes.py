@@ -20,8 +20,9 @@ from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.protocol import Policy
+from terl_rt.sim.evader import DEFAULT_EVADER
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
-from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.scenario import Scenario, scenario_label
 
 RESULTS_SCHEMA = 2
 """Version of the per-episode result fields (`ScenarioResult.episode_rows`, `eval --json`
@@ -52,6 +53,13 @@ class ScenarioResult:
     per_episode: tuple[EpisodeMetrics, ...]
     step_s: float = 0.5
     """s: the decision step (params.dt x params.substeps); the step limit lasts max_steps x step_s."""
+    evader: str = DEFAULT_EVADER
+    """the evaders' behaviour (`Scenario.evader`, a name of terl_rt.sim.evader.EVADERS)."""
+
+    @property
+    def label(self) -> str:
+        """The scenario's name, with the evader where it is not the default: "small-15/still"."""
+        return scenario_label(self.name, self.evader)
 
     @property
     def limit_s(self) -> float:
@@ -102,6 +110,7 @@ class ScenarioResult:
         (`episode_rows`)."""
         row = {
             "name": self.name,
+            "evader": self.evader,
             "episodes": self.episodes,
             "seed": self.seed,
             "max_steps": self.max_steps,
@@ -159,5 +168,5 @@ def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[Episode
     return ScenarioResult(
         name=scenario.name, episodes=len(per_episode), seed=seed, max_steps=scenario.max_steps,
         **asdict(summarize(per_episode)), wall_s=wall_s, per_episode=tuple(per_episode),
-        step_s=scenario.params.dt * scenario.params.substeps,
+        step_s=scenario.params.dt * scenario.params.substeps, evader=scenario.evader,
     )

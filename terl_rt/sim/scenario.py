@@ -185,6 +185,17 @@ class Scenario:
         """A copy with some fields changed (validated)."""
         return dataclasses.replace(self, **changes)
 
+    @property
+    def label(self) -> str:
+        """The name, with the evader where it is not the default (`scenario_label`)."""
+        return scenario_label(self.name, self.evader)
+
+
+def scenario_label(name: str, evader: str) -> str:
+    """How results name a scenario: "small-15" with the paper's evader, "small-15/widest-gap"
+    with another."""
+    return name if evader == DEFAULT_EVADER else f"{name}/{evader}"
+
 
 # ---------------------------------------------------------------- validation
 SCENARIO_LIMITS: dict[str, float] = {
