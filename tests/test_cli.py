@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 from onnx_models import write_broken_policy, write_random_bytes, write_test_policy
 from PIL import Image
+from one_line import assert_one_error
 from tiny_worlds import capture_scenario
 
 import terl_rt.cli.eval
@@ -20,7 +21,7 @@ from terl_rt.evaluation.episodes import RESULTS_SCHEMA
 ROW_KEYS = {
     "name", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "travel_time_s_std",
     "collision_ratio_mean", "steps_mean", "ci95", "wall_s", "per_episode", "travel_time_s_success_mean",
-    "travel_time_s_limit_mean", "limit_s",
+    "travel_time_s_limit_mean", "limit_s", "evader",
 }
 
 
@@ -103,6 +104,30 @@ def test_eval_with_two_workers_matches_one(files):
     two = json.loads(invoke(*common, "--workers", "2").stdout)["scenarios"][0]
     for key in ROW_KEYS - {"wall_s"}:
         assert one[key] == two[key], key
+
+
+def test_eval_evader_option_runs_that_evader_and_names_it(files):
+    common = ("eval", "--policy", files["policy"], "--scenario", "small-11", "--episodes", "1", "--max-steps", "3")
+    table = invoke(*common, "--evader", "still")
+    assert table.exit_code == 0, table.output
+    assert table.stdout.splitlines()[2].split()[:2] == ["small-11/still", "1"]
+    (row,) = json.loads(invoke(*common, "--evader", "still", "--json").stdout)["scenarios"]
+    assert (row["name"], row["evader"]) == ("small-11", "still")
+    (default,) = json.loads(invoke(*common, "--json").stdout)["scenarios"]
+    assert default["evader"] == "apf"
+
+
+def test_eval_evader_option_overrides_a_scenario_files_evader(files, tmp_path):
+    path = tmp_path / "gap.json"
+    path.write_text(json.dumps({**capture_scenario(max_steps=2).to_dict(), "evader": "widest-gap"}))
+    common = ("eval", "--policy", files["policy"], "--scenario-file", path, "--episodes", "1", "--json")
+    assert json.loads(invoke(*common).stdout)["scenarios"][0]["evader"] == "widest-gap"
+    assert json.loads(invoke(*common, "--evader", "apf").stdout)["scenarios"][0]["evader"] == "apf"
+
+
+@pytest.mark.parametrize("command", ["eval", "report", "sweep"])
+def test_an_unknown_evader_is_one_error_line_naming_the_known_ones(command):
+    assert_one_error(invoke(command, "--evader", "fast"), "--evader", "unknown evader 'fast'", "apf, still, widest-gap")
 
 
 def test_eval_without_the_default_policy_says_to_pass_one(monkeypatch, tmp_path):

@@ -1,4 +1,5 @@
-"""The published APF evader (world.md section 8), quirks included.
+"""The published APF evader (world.md section 8), quirks included; the registry of evaders
+and the others it names (docs/simulator.md, "Evaders").
 
 Expected forces are worked out from the section 8 formulas in the comments; the action
 index is i_a * 5 + i_w with a_set (-0.4, 0, 0.4), w_set (-pi/6, -pi/12, 0, pi/12, pi/6).
@@ -10,10 +11,23 @@ import math
 
 import numpy as np
 import pytest
-from sim_helpers import DEFAULT, geometry_of, initial_scenario, make_state, random_state, to_ego
+from sim_helpers import DEFAULT, geometry_of, initial_scenario, make_state, random_state, ring, to_ego
 
 from terl_rt.sim.actions import EVADER_YAW_RATES
-from terl_rt.sim.evader import ConstantEvader, PublishedAPFEvader
+import terl_rt.sim.evader
+from terl_rt.sim.evader import (
+    DEFAULT_EVADER,
+    EVADERS,
+    ConstantEvader,
+    PublishedAPFEvader,
+    StillEvader,
+    UnknownEvader,
+    WidestGapEvader,
+    build_evader,
+    register_evader,
+    widest_gap_bisector,
+)
+from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 
 ARENA = (100.0, 100.0)
@@ -312,3 +326,159 @@ def test_apf_matches_plain_loop_on_random_worlds(seed, arena):
     expected = np.array([[reference_apf(state, b, j, DEFAULT, arena) for j in range(6)] for b in range(6)])
     np.testing.assert_array_equal(got, expected)
     assert len(np.unique(expected)) >= 5  # the worlds exercise several decisions
+
+
+# ---------------------------------------------------------------- the registry
+def test_the_registry_names_apf_first_then_still_and_widest_gap():
+    assert tuple(EVADERS) == ("apf", "still", "widest-gap")
+    assert DEFAULT_EVADER == "apf"
+    assert all(kind.name == name and kind.summary for name, kind in EVADERS.items())
+    assert [type(build_evader(name)) for name in EVADERS] == [PublishedAPFEvader, StillEvader, WidestGapEvader]
+
+
+def test_an_unknown_evader_lists_the_known_ones():
+    with pytest.raises(UnknownEvader, match="unknown evader 'fast'; the evaders are apf, still, widest-gap"):
+        build_evader("fast")
+
+
+def test_a_registered_evader_is_one_a_scenario_can_name(monkeypatch):
+    monkeypatch.setattr(terl_rt.sim.evader, "EVADERS", dict(EVADERS))
+    register_evader("idle", lambda: ConstantEvader(7), "keeps speed and heading")
+    world = World(Scenario.preset("small-11").replace(evader="idle"))
+    assert isinstance(world.evader_policy, ConstantEvader) and world.evader_policy.action == 7
+    with pytest.raises(ValueError, match="already registered"):
+        register_evader("idle", StillEvader, "again")
+
+
+def test_the_world_builds_the_evader_its_scenario_names():
+    scenario = Scenario.preset("small-11")
+    assert type(World(scenario).evader_policy) is PublishedAPFEvader
+    assert type(World(scenario.replace(evader="still")).evader_policy) is StillEvader
+    assert type(World(scenario.replace(evader="widest-gap")).evader_policy) is WidestGapEvader
+    # an explicit policy still wins
+    assert type(World(scenario.replace(evader="still"), evader_policy=ConstantEvader(7)).evader_policy) is ConstantEvader
+
+
+# ---------------------------------------------------------------- still targets
+STILL_PURSUERS = [[20.0, 20.0, 0.0, 0.0], [100.0, 20.0, 0.0, 0.0], [20.0, 100.0, 0.0, 0.0]]
+
+
+def test_a_still_target_at_rest_does_not_move():
+    # a = -0.4, w = 0 from rest: the speed stays clipped at 0, and without cores no current moves it
+    scenario = initial_scenario(STILL_PURSUERS, [[60.0, 60.0, 1.0, 0.0]], evader="still")
+    world = World(scenario)
+    world.reset()
+    for _ in range(20):
+        _, result = world.step(np.full((1, 3), 4))
+        assert result.evader_actions.tolist() == [[2]]
+    assert world.state.evader_xy.tolist() == [[[60.0, 60.0]]]
+    assert world.state.evader_theta.tolist() == [[1.0]]
+
+
+def test_a_moving_still_target_comes_to_rest_and_stays():
+    # 3.5 m/s braking at 0.4 m/s^2 (and drag) is at rest within 3.5 / 0.4 = 8.75 s = 18 steps
+    scenario = initial_scenario(STILL_PURSUERS, [[60.0, 60.0, 0.0, 3.5]], evader="still")
+    world = World(scenario)
+    world.reset()
+    for _ in range(18):
+        world.step(np.full((1, 3), 4))
+    assert world.state.evader_speed.tolist() == [[0.0]]
+    rest = world.state.evader_xy.copy()
+    world.step(np.full((1, 3), 4))
+    assert np.array_equal(world.state.evader_xy, rest)
+
+
+# ---------------------------------------------------------------- widest gap
+def test_the_bisector_of_the_widest_gap_on_paper():
+    # pursuers at bearings 0, 90 and 135 degrees leave gaps of 90, 45 and 225 (135 -> 360):
+    # the bisector of the widest is 135 + 225 / 2 = 247.5 degrees
+    bearing = np.radians([[[0.0, 90.0, 135.0, 0.0, 0.0]]])
+    seen = np.array([[[True, True, True, False, False]]])
+    assert math.degrees(widest_gap_bisector(bearing, seen)[0, 0]) == pytest.approx(247.5)
+
+
+def test_one_pursuer_leaves_one_gap_whose_bisector_points_away():
+    bearing = np.radians([[[30.0, 0.0]]])
+    assert math.degrees(widest_gap_bisector(bearing, np.array([[[True, False]]]))[0, 0]) == pytest.approx(210.0)
+
+
+def test_equal_gaps_go_to_the_one_from_the_smallest_bearing():
+    # bearings -90 and 90: two gaps of 180; the one from -90 wins, bisector 0
+    bearing = np.radians([[[90.0, -90.0]]])
+    assert widest_gap_bisector(bearing, np.ones((1, 1, 2), bool))[0, 0] == pytest.approx(0.0)
+
+
+def reference_bisector(bearings: list[float]) -> float:
+    """The widest gap's bisector by a plain loop over the sorted bearings (rad)."""
+    ordered = sorted(bearings)
+    best, start = -1.0, 0.0
+    for i, b in enumerate(ordered):
+        gap = (ordered[i + 1] if i + 1 < len(ordered) else ordered[0] + 2 * math.pi) - b
+        if gap > best:
+            best, start = gap, b
+    return start + best / 2
+
+
+def test_widest_gap_bisector_matches_a_plain_loop_on_random_bearings():
+    rng = np.random.default_rng(3)
+    bearing = rng.uniform(-math.pi, math.pi, (40, 3, 5))
+    seen = rng.random((40, 3, 5)) < 0.6
+    seen[:, :, 0] = True  # the caller masks rows without a seen pursuer
+    got = widest_gap_bisector(bearing, seen)
+    expected = [[reference_bisector(bearing[b, j][seen[b, j]].tolist()) for j in range(3)] for b in range(40)]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def gap_decision(evader, pursuers, obstacles=()) -> int:
+    state = make_state(pursuers, [evader], obstacles)
+    return WidestGapEvader().act(state, geometry_of(state), DEFAULT, (120.0, 120.0))[0, 0].item()
+
+
+GAP_RING = ring((60.0, 60.0), 10.0, [0.0, 90.0, 135.0])
+"""pursuers 10 m from (60, 60) at bearings 0, 90 and 135 degrees: the widest gap's bisector is 247.5."""
+
+
+def test_the_gap_seeker_turns_towards_the_bisector_at_full_speed():
+    # heading 237.5 degrees: the bisector (247.5) lies 10 degrees (0.175 rad) to its left. Turns in one
+    # 0.5 s step: w / 2 = -0.262, -0.131, 0, 0.131, 0.262 rad -> pi/12 (index 3); within pi/2 -> +0.4
+    assert gap_decision([60.0, 60.0, math.radians(237.5), 2.0], GAP_RING) == action(2, 3)
+    # heading 257.5 degrees: 10 degrees to its right -> -pi/12 (index 1)
+    assert gap_decision([60.0, 60.0, math.radians(257.5), 2.0], GAP_RING) == action(2, 1)
+
+
+def test_the_gap_seeker_brakes_and_turns_hard_when_the_gap_is_behind():
+    # heading 0: the bisector lies 112.5 degrees to its right -> -pi/6 (index 0); beyond pi/2 -> -0.4
+    assert gap_decision([60.0, 60.0, 0.0, 2.0], GAP_RING) == action(0, 0)
+
+
+def test_the_gap_seeker_ignores_pursuers_beyond_its_sensing_range():
+    # one pursuer 10 m behind (seen) and one 25 m ahead (beyond R + r = 21.1 m): the one gap's
+    # bisector is straight ahead -> w = 0, +0.4. Seeing both, the tie would turn it to 90 degrees.
+    assert gap_decision([60.0, 60.0, 0.0, 2.0], [[50.0, 60.0, 0.0, 0.0], [85.0, 60.0, 0.0, 0.0]]) == action(2, 2)
+
+
+def test_the_gap_seeker_seeing_no_pursuer_holds_its_course():
+    # no pursuer within 21.1 m: the pull is along its heading; speed 2 >= v_min -> a = 0; 0.5 < v_min -> +0.4
+    assert gap_decision([60.0, 60.0, 1.0, 2.0], [[10.0, 10.0, 0.0, 0.0]]) == action(1, 2)
+    assert gap_decision([60.0, 60.0, 1.0, 0.5], [[10.0, 10.0, 0.0, 0.0]]) == action(2, 2)
+
+
+def test_the_gap_seeker_turns_away_from_an_obstacle_ahead():
+    # gap straight ahead (one pursuer behind); obstacle at (63, 59), r = 1: |p| = 3.162, d = 1.362,
+    # push 5000 (1/1.362 - 1/15) / 1.362^2 = 1805 along (-0.949, 0.316); with the pull 50 along +x the
+    # total points at 161 degrees: -> pi/6 (index 4) and, beyond pi/2, -0.4
+    evader, behind = [60.0, 60.0, 0.0, 2.0], [[50.0, 60.0, 0.0, 0.0]]
+    assert gap_decision(evader, behind, obstacles=[[63.0, 59.0, 1.0]]) == action(0, 4)
+    assert gap_decision(evader, behind) == action(2, 2)
+
+
+def test_the_same_seed_gives_the_same_gap_seeking_episode():
+    scenario = Scenario.preset("small-11").replace(evader="widest-gap", max_steps=40)
+    runs = []
+    for _ in range(2):
+        world = World(scenario, num_envs=2, seed=5)
+        world.reset()
+        while not world.done.any():
+            _, result = world.step(np.full((2, 11), 7))
+        runs.append((world.state.evader_xy.copy(), result.evader_actions.copy()))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])

@@ -48,6 +48,23 @@ def test_verify_passes_on_a_real_log(policy, tmp_path):
         assert "bit-identical" in report.format()
 
 
+def logged_evader_actions(path: Path) -> list[list[int]]:
+    return [step.evader_actions.tolist() for step in EpisodeLogReader(path).steps(0) if step.step > 0]
+
+
+def test_the_log_names_a_non_default_evader_and_verify_resimulates_with_it(policy, tmp_path):
+    gap, apf = tmp_path / "gap.mcap", tmp_path / "apf.mcap"
+    scenario = Scenario.preset("small-11")
+    evaluate(policy, scenario.replace(evader="widest-gap"), episodes=1, seed=2, max_steps=20, log_path=gap)
+    evaluate(policy, scenario, episodes=1, seed=2, max_steps=20, log_path=apf)
+    assert EpisodeLogReader(gap).episode(0).scenario.evader == "widest-gap"
+    assert logged_evader_actions(gap) != logged_evader_actions(apf)  # an APF re-simulation would not match
+    report = verify(gap)
+    assert report.ok and report.steps_checked == 20, report.format()
+    assert report.evader == "widest-gap" and report.to_dict()["evader"] == "widest-gap"
+    assert report.format().startswith("episode 0 (small-11/widest-gap, seed 2): ok")
+
+
 def test_verify_passes_through_captures_and_collisions(policy, tmp_path):
     report = verify(write_log(policy, tmp_path / "capture.mcap", capture_scenario(8), seed=0))
     assert report.ok, report.format()

@@ -292,6 +292,17 @@ def test_report_cli_evaluates_and_writes_both_files(policy, tmp_path):
         assert image.size[0] >= 900
 
 
+def test_report_cli_with_another_evader_names_it_in_the_rows_and_the_command(policy, tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "still"
+    result = invoke("report", "--policy", policy, "--scenario", "small-11", "--evader", "still", "--episodes", "1",
+                    "--max-steps", "2", "--out", out)
+    assert result.exit_code == 0, result.output
+    text = (out / "results.md").read_text()
+    assert "--scenario small-11 --evader still --episodes 1" in text
+    assert "| small-11/still | small | 1 |" in text
+
+
 def test_report_cli_json_lists_scenarios_groups_goals_and_files(policy, tmp_path):
     pytest.importorskip("matplotlib")
     result = invoke("report", "--policy", policy, "--scenario", "small-11", "--episodes", "1",

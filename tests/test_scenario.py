@@ -305,3 +305,41 @@ def test_an_unknown_params_key_suggests_the_closest_constant():
 def test_an_unknown_scenario_field_suggests_the_closest_field():
     with pytest.raises(ScenarioError, match=r"pursuer: unknown field \(did you mean 'pursuers'\?\)"):
         Scenario.from_dict({"name": "x", "pursuer": 3})
+
+
+# ---------------------------------------------------------------- the evader field
+def test_presets_run_the_papers_evader():
+    assert {Scenario.preset(name).evader for name in Scenario.presets()} == {"apf"}
+
+
+def test_a_scenario_file_names_its_evader(tmp_path):
+    path = tmp_path / "gap.json"
+    path.write_text('{"name": "gap", "evader": "widest-gap"}')
+    scenario = Scenario.from_file(path)
+    assert scenario.evader == "widest-gap"
+    scenario.to_file(path)
+    assert json.loads(path.read_text())["evader"] == "widest-gap"
+    assert Scenario.from_file(path) == scenario
+
+
+def test_the_default_evader_is_left_out_of_the_file():
+    # files (and the logs and saved results that hold them) of the paper's evader are as before
+    assert "evader" not in Scenario.preset("small-15").to_dict()
+    assert Scenario.from_dict({"name": "x", "evader": "apf"}) == Scenario(name="x")
+
+
+@pytest.mark.parametrize("evader", ["fast", "APF", 3, None])
+def test_an_unknown_evader_is_an_error_listing_the_known_ones(evader):
+    with pytest.raises(ScenarioError, match=r"^evader: unknown evader .*; the evaders are apf, still, widest-gap$"):
+        Scenario.from_dict({"name": "x", "evader": evader})
+    with pytest.raises(ScenarioError, match="evader: unknown evader"):
+        Scenario.preset("small-15").replace(evader=evader)
+
+
+def test_scenarios_command_lists_the_evaders_one_a_line():
+    result = CliRunner().invoke(cli, ["scenarios", "--evaders"])
+    assert result.exit_code == 0, result.output
+    assert [line.split()[0] for line in result.stdout.splitlines()] == ["apf", "still", "widest-gap"]
+    listed = json.loads(CliRunner().invoke(cli, ["scenarios", "--evaders", "--json"]).stdout)
+    assert [row["name"] for row in listed["evaders"]] == ["apf", "still", "widest-gap"]
+    assert listed["default"] == "apf" and all(row["summary"] for row in listed["evaders"])

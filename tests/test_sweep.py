@@ -76,6 +76,16 @@ def test_sweep_command_writes_one_table_as_json_csv_and_markdown(policy_files, t
     assert list(csv.DictReader(open(out / "sweep.csv"))) == rows
 
 
+def test_sweep_command_names_a_non_default_evader_in_every_table(policy_files, tmp_path):
+    out = tmp_path / "still"
+    result = invoke("sweep", "--policy", policy_files[0], "--scenario", "small-11", "--evader", "still",
+                    "--episodes", "1", "--max-steps", "3", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert [(r["scenario"], r["evader"]) for r in csv.DictReader(open(out / "sweep.csv"))] == [("small-11", "still")]
+    assert json.loads((out / "sweep.json").read_text())["rows"][0]["evader"] == "still"
+    assert "| small-11/still |" in (out / "sweep.md").read_text()
+
+
 def test_the_cli_and_the_evaluation_import_without_ray():
     probe = "import terl_rt.cli.main, terl_rt.evaluation.sweep, sys; print('ray' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split() == ["False"]

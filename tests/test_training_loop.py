@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from terl_rt.policy.onnx_policy import OnnxPolicy
+from terl_rt.sim.evader import StillEvader
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.reward import REWARD_TERMS
 from terl_rt.sim.scenario import Scenario, curriculum_stage
@@ -113,6 +114,37 @@ def test_training_worlds_use_the_configs_reward_variant(variant):
     assert [scenario.reward for scenario in training_scenarios(config.schedule, variant, 0)] == [variant]
     mixed = config.replace(curriculum=False, mixed_scenarios=("medium-48",))
     assert [scenario.reward for scenario in training_scenarios(mixed.schedule, variant, 0)] == [variant, variant]
+
+
+def test_training_worlds_have_the_configs_evader():
+    assert Config().schedule.evader == "apf"
+    config = Config.of(evader="widest-gap", total_steps=700)
+    assert [scenario.evader for scenario in training_scenarios(config.schedule, "paper", 0)] == ["widest-gap"]
+    mixed = config.replace(curriculum=False, mixed_scenarios=("medium-48",))
+    assert [scenario.label for scenario in training_scenarios(mixed.schedule, "paper", 0)] == [
+        "small-15/widest-gap", "medium-48/widest-gap",
+    ]
+
+
+def test_unknown_evader_is_a_config_error_listing_the_known_ones():
+    with pytest.raises(ConfigError, match="evader: unknown evader 'fast'; the evaders are apf, still, widest-gap"):
+        Config.of(evader="fast")
+
+
+def test_a_tiny_run_trains_and_takes_snapshots_against_the_configs_evader(tmp_path, monkeypatch):
+    calls = []
+    act = StillEvader.act
+    monkeypatch.setattr(StillEvader, "act", lambda self, state, *rest: calls.append(state.evader_active.shape)
+                        or act(self, state, *rest))
+    config = tiny_config(evader="still", curriculum=False, scenario="small-11", total_steps=48, num_envs=4,
+                         learning_starts=16, target_network_frequency=16, snapshot_frequency=48, snapshot_episodes=1,
+                         eval_max_steps=3, log_frequency=48, checkpoint_frequency=48)
+    train(config, tmp_path / "still", show_progress=False)
+    records = [json.loads(line) for line in (tmp_path / "still" / METRICS_FILE).read_text().splitlines()]
+    assert {r["stage"] for r in records if r["kind"] == "train"} == {"small-11/still"}
+    assert (4, 3) in calls  # the training worlds: 4 environments of small-11's 3 evaders
+    assert any(r["kind"] == "snapshot" for r in records) and (1, 4) in calls  # and small-15's, in a snapshot
+    assert json.loads((tmp_path / "still" / "config.json").read_text())["schedule"]["evader"] == "still"
 
 
 def test_unknown_reward_variant_is_a_config_error():

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from terl_rt.paper.numbers import PAPER_METHODS
+from terl_rt.sim.evader import DEFAULT_EVADER, UnknownEvader, evader_kind
 from terl_rt.sim.reward import REWARD_VARIANTS
 from terl_rt.sim.scenario import CURRICULUM_STARTS, PRESETS
 
@@ -169,6 +170,9 @@ class ScheduleConfig:
     """presets trained on beside `scenario` when curriculum is false: B worlds of each, the batch
     steps going to them in turn, every transition into the one buffer (its rows padded to the
     most evader slots). Empty: `scenario` alone."""
+    evader: str = DEFAULT_EVADER
+    """the evaders trained against, in every training scenario and in the snapshots' evaluations:
+    a name of terl_rt.sim.evader.EVADERS (`terl-rt scenarios --evaders`), "apf" the paper's."""
     train_max_steps: int = 3000
     """decision steps before a training episode is truncated (the published 3000)."""
     start_e: float = 0.6
@@ -339,7 +343,9 @@ RETURN_FIELDS = (
 """Fields that fix what a stored transition holds (its return, discount and done): a saved
 replay buffer is reused only under the same values."""
 
-SNAPSHOT_FIELDS = ("curriculum", "scenario", "snapshot_preset", "snapshot_episodes", "eval_seed", "eval_max_steps")
+SNAPSHOT_FIELDS = (
+    "curriculum", "scenario", "evader", "snapshot_preset", "snapshot_episodes", "eval_seed", "eval_max_steps",
+)
 """Fields that fix what a snapshot is evaluated on: snapshot scores compare only under the same values."""
 
 
@@ -439,6 +445,10 @@ def _validate(config: Config) -> None:
         for preset in presets:
             if preset not in PRESETS:
                 raise ConfigError(f"{name}: unknown preset '{preset}'; presets are {', '.join(PRESETS)}")
+    try:
+        evader_kind(schedule.evader)
+    except UnknownEvader as error:
+        raise ConfigError(f"evader: {error}") from None
     if len({schedule.scenario, *schedule.mixed_scenarios}) != 1 + len(schedule.mixed_scenarios):
         raise ConfigError(f"mixed_scenarios: a preset appears twice in {[schedule.scenario, *schedule.mixed_scenarios]}")
     positive = (

@@ -108,17 +108,22 @@ METRICS_FILE = "metrics.jsonl"
 def training_scenarios(schedule: ScheduleConfig, reward: str, env_step: int) -> list[Scenario]:
     """The scenarios trained on at `env_step`: the curriculum stage (terl_rt.sim.scenario.
     curriculum_stage over `curriculum_steps`, else `total_steps`), or the fixed preset and
-    `mixed_scenarios`, with the reward variant `reward` and the training episode limit."""
+    `mixed_scenarios`, with the reward variant `reward`, the schedule's evader and the training
+    episode limit."""
     if schedule.curriculum:
         scenarios = [curriculum_stage(env_step, schedule.curriculum_steps or schedule.total_steps)]
     else:
         scenarios = [Scenario.preset(name) for name in (schedule.scenario, *schedule.mixed_scenarios)]
-    return [scenario.replace(reward=reward, max_steps=schedule.train_max_steps) for scenario in scenarios]
+    return [
+        scenario.replace(reward=reward, evader=schedule.evader, max_steps=schedule.train_max_steps)
+        for scenario in scenarios
+    ]
 
 
 def stage_label(scenarios: list[Scenario]) -> str:
-    """What a run trains on at once, as logged: the scenarios' names joined by '+'."""
-    return "+".join(scenario.name for scenario in scenarios)
+    """What a run trains on at once, as logged: the scenarios' names (with the evader where it is
+    not the paper's, `Scenario.label`) joined by '+'."""
+    return "+".join(scenario.label for scenario in scenarios)
 
 
 def buffer_evader_slots(scenarios: list[Scenario]) -> int:
@@ -302,9 +307,11 @@ def snapshot_score(evaluations: list[dict[str, Any]], run: RunConfig) -> float:
 
 
 def take_snapshot(model: QNetwork, scenario: Scenario, run: RunConfig, best: float | None) -> tuple[dict[str, Any], bool]:
-    """Evaluate the online network on the current stage `scenario` and `run.snapshot_preset`;
-    returns the "snapshot" record (without env_step) and whether it beats `best`."""
-    evaluations = [greedy_evaluation(model, scenario, run), greedy_evaluation(model, Scenario.preset(run.snapshot_preset), run)]
+    """Evaluate the online network on the current stage `scenario` and `run.snapshot_preset` (both
+    against the stage's evader); returns the "snapshot" record (without env_step) and whether it
+    beats `best`."""
+    preset = Scenario.preset(run.snapshot_preset).replace(evader=scenario.evader)
+    evaluations = [greedy_evaluation(model, scenario, run), greedy_evaluation(model, preset, run)]
     score = snapshot_score(evaluations, run)
     better = best is None or score > best
     return {"kind": "snapshot", "score": score, "best": better, "evaluations": evaluations}, better

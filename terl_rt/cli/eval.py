@@ -15,6 +15,7 @@ from terl_rt.cli.options import (
     address_option,
     backend_option,
     episodes_option,
+    evader_option,
     evaluate_with_progress,
     json_option,
     log_option,
@@ -49,7 +50,7 @@ HEADER = (
 successful episodes and mean collision ratio, each with its bootstrap interval."""
 
 CSV_COLUMNS = (
-    "scenario", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
+    "scenario", "evader", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
     "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "acting", "shield_overrides",
     "decisions", "terl_rt", "schema",
 )
@@ -65,7 +66,7 @@ def _row(result: ScenarioResult) -> str:
     travel = f"{result.travel_time_s_success_mean:.1f} {format_interval(ci['travel_time_s_success'], 1)}"
     collision = f"{result.collision_ratio_mean:.3f} {format_interval(ci['collision_ratio'], 3)}"
     return (
-        f"{result.name:<14}{result.episodes:>9} {success:<18}{travel:<22}{collision:<20}"
+        f"{result.label:<14}{result.episodes:>9} {success:<18}{travel:<22}{collision:<20}"
         f"{result.steps_mean:>7.1f}{result.wall_s:>9.1f}"
     )
 
@@ -95,7 +96,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
         for result in results:
             for row in result.episode_rows():
                 writer.writerow({
-                    "scenario": result.name, **{k: v for k, v in row.items() if k in CSV_COLUMNS},
+                    "scenario": result.name, "evader": result.evader, **{k: v for k, v in row.items() if k in CSV_COLUMNS},
                     "max_steps": result.max_steps, "policy": info["name"], "policy_sha256": info["sha256"],
                     "acting": result.acting.label, "terl_rt": version, "schema": RESULTS_SCHEMA,
                 })
@@ -106,6 +107,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @scenarios_option
 @scenario_file_option
 @suite_option
+@evader_option
 @episodes_option
 @seed_option
 @max_steps_option
@@ -122,8 +124,8 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @acting_options
 @force_option
 def eval_command(
-    policy_path, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, log_path,
-    as_json, csv_path, threads, shield, shield_margin, shield_horizon, risk, force,
+    policy_path, scenario_names, scenario_file, suite, evader, episodes, seed, max_steps, workers, backend, address,
+    log_path, as_json, csv_path, threads, shield, shield_margin, shield_horizon, risk, force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s) over the successful episodes,
     collision ratio, steps and wall time per scenario, with 95 % confidence intervals over
@@ -148,13 +150,14 @@ def eval_command(
       terl-rt eval --suite paper --workers 2 --csv episodes.csv
       terl-rt eval --episodes 5 --log run.mcap         # then: terl-rt replay run.mcap
       terl-rt eval --scenario-file my-world.json --json
+      terl-rt eval --scenario large-80 --evader widest-gap   # rows: large-80/widest-gap
     """
     inputs = [("--policy", policy_path), ("--scenario-file", scenario_file)]
     if log_path is not None:
         check_output(log_path, "--log", inputs, force)
     if csv_path is not None:
         check_output(csv_path, "--csv", inputs + [("--log", log_path)], force)
-    scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
+    scenarios = resolve_scenarios(scenario_names, scenario_file, suite, evader)
     acting = acting_of(shield, shield_margin, shield_horizon, risk)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     for option, path in (("--log", log_path), ("--csv", csv_path)):

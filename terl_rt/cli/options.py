@@ -21,6 +21,7 @@ from terl_rt.policy.shipped import DEFAULT_POLICY, NoShippedPolicy
 from terl_rt.safety.acting import Acting
 from terl_rt.safety.risk import Risk
 from terl_rt.safety.shield import DEFAULT_HORIZON_STEPS, DEFAULT_MARGIN_M, MAX_HORIZON_STEPS, MAX_MARGIN_M, Shield
+from terl_rt.sim.evader import DEFAULT_EVADER, EVADERS, UnknownEvader, evader_kind
 from terl_rt.sim.scenario import PAPER_SUITE, SCENARIO_LIMITS, Scenario
 
 MAX_SEED = 2**62
@@ -74,6 +75,15 @@ def _scenario(ctx: click.Context, param: click.Parameter, value: str | None) -> 
     return None if value is None else Scenario.preset(value)
 
 
+def _evader(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    if value is not None:
+        try:
+            evader_kind(value)
+        except UnknownEvader as error:
+            raise BadInput(f"--evader: {error}") from None
+    return value
+
+
 def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
     """Open the policy file `path` (None: the default policy, `terl_rt.policy.shipped`);
     contract refusals name the file."""
@@ -111,16 +121,24 @@ def policy_json(info: Mapping[str, Any]) -> dict[str, str]:
     return {key: info[key] for key in ("name", "sha256", "path")}
 
 
-def resolve_scenarios(names: tuple[str, ...], scenario_file: str | None, suite: str | None) -> list[Scenario]:
-    """The scenarios of `--scenario ... | --scenario-file F | --suite paper` (default small-15)."""
+def resolve_scenarios(
+    names: tuple[str, ...], scenario_file: str | None, suite: str | None, evader: str | None = None,
+) -> list[Scenario]:
+    """The scenarios of `--scenario ... | --scenario-file F | --suite paper` (default small-15),
+    with the evader of --evader (`with_evader`)."""
     given = sum(bool(choice) for choice in (names, scenario_file, suite))
     if given > 1:
         raise BadInput("pass only one of --scenario, --scenario-file and --suite")
     if scenario_file:
-        return [Scenario.from_file(scenario_file)]
+        return with_evader([Scenario.from_file(scenario_file)], evader)
     if suite:
-        return [Scenario.preset(name) for name in PAPER_SUITE]
-    return [Scenario.preset(name) for name in (names or ("small-15",))]
+        return with_evader([Scenario.preset(name) for name in PAPER_SUITE], evader)
+    return with_evader([Scenario.preset(name) for name in (names or ("small-15",))], evader)
+
+
+def with_evader(scenarios: list[Scenario], evader: str | None) -> list[Scenario]:
+    """`scenarios` with the evader of --evader, `evader` (None: each its own)."""
+    return scenarios if evader is None else [scenario.replace(evader=evader) for scenario in scenarios]
 
 
 def check_address(backend: str, address: str | None) -> None:
@@ -255,6 +273,11 @@ scenario_file_option = click.option(
 suite_option = click.option(
     "--suite", type=click.Choice(["paper"]), default=None,
     help="A scenario suite: paper = the 10 evaluation presets of Table III.",
+)
+evader_option = click.option(
+    "--evader", default=None, metavar="NAME", callback=_evader,
+    help=f"The evaders of every scenario: {', '.join(EVADERS)} (`terl-rt scenarios --evaders`) "
+    f"[default: the scenario's own, {DEFAULT_EVADER} (the paper's) for the presets].",
 )
 seed_option = click.option(
     "--seed", type=IntRange(min=0, max=MAX_SEED), default=0, show_default=True,

@@ -14,7 +14,8 @@ from terl_rt.logs.resimulate import verify
 
 def _episode_dict(entry: LoggedEpisode) -> dict:
     return {
-        "episode": entry.number, "index": entry.index, "scenario": entry.scenario.name, "seed": entry.seed,
+        "episode": entry.number, "index": entry.index, "scenario": entry.scenario.name, "evader": entry.scenario.evader,
+        "seed": entry.seed,
         "steps": entry.steps, "complete": entry.complete, "damaged_chunks": list(entry.damaged),
         "metrics": None if entry.metrics is None else entry.metrics.to_dict(),
         "shield_overrides": None if entry.metrics is None else entry.metrics.shield_overrides,
@@ -54,7 +55,7 @@ def _episode_line(entry: LoggedEpisode) -> str:
             f"{m.collision_ratio:>16.3f}{team_return:>10}"
         )
     damage = f"  DAMAGED: reads up to the chunk at byte {entry.damaged[0]}" if entry.damaged else ""
-    return f"{entry.number:>4}  {entry.scenario.name:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}{damage}"
+    return f"{entry.number:>4}  {entry.scenario.label:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}{damage}"
 
 
 def _held_note(log: str) -> str | None:

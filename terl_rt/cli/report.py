@@ -16,6 +16,7 @@ from terl_rt.cli.options import (
     acting_options,
     address_option,
     backend_option,
+    evader_option,
     evaluate_with_progress,
     json_option,
     max_steps_option,
@@ -66,6 +67,7 @@ def command_line(
     beyond_episodes: int | None = None,
     terl: str = DEFAULT_TERL,
     acting: Acting = Acting(),
+    evader: str | None = None,
 ) -> str:
     """The `terl-rt report` command line that repeats a run, every option that shapes the results spelled out."""
     words = ["terl-rt", "report"]
@@ -73,6 +75,8 @@ def command_line(
         words += ["--policy", path]
     for name in scenario_names:
         words += ["--scenario", name]
+    if evader is not None:
+        words += ["--evader", evader]
     if beyond:
         words.append("--beyond")
     if terl != DEFAULT_TERL:
@@ -109,6 +113,7 @@ def command_line(
     help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
     "ones; see `terl-rt scenarios`].",
 )
+@evader_option
 @click.option(
     "--beyond", is_flag=True,
     help="Also evaluate teams past the paper's: "
@@ -151,8 +156,8 @@ def command_line(
 @json_option
 @force_option
 def report_command(
-    policy_paths, scenario_names, beyond, terl, episodes, beyond_episodes, seed, max_steps, workers, backend, address, threads,
-    shield, shield_margin, shield_horizon, risk, out, keep_progress, as_json, force,
+    policy_paths, scenario_names, evader, beyond, terl, episodes, beyond_episodes, seed, max_steps, workers, backend,
+    address, threads, shield, shield_margin, shield_horizon, risk, out, keep_progress, as_json, force,
 ) -> None:
     """Measure a policy against the TERL paper: evaluate it on the paper's presets and
     the released small-scale config's, and write DIR/results.md (a row per preset and per
@@ -207,7 +212,7 @@ def report_command(
     acting = acting_of(shield, shield_margin, shield_horizon, risk)
     command = command_line(
         policy_paths, scenario_names, episodes, seed, max_steps, workers, threads, out, force, backend, address, beyond,
-        beyond_episodes, terl, acting,
+        beyond_episodes, terl, acting, evader,
     )
     if len(files) > 1 or beyond or terl != DEFAULT_TERL:
         if not acting.plain:
@@ -215,7 +220,7 @@ def report_command(
                            "paper did (greedy); compare shielded rows with `terl-rt sweep --shield`")
         policies = [open_policy(path, threads=policy_threads(backend, workers, threads)) for path in files]
         run = ComparisonRun(scenario_names, episodes, beyond_episodes or episodes, seed, max_steps, workers, backend,
-                            address, threads, out_dir, keep_progress, as_json, force, command, terl)
+                            address, threads, out_dir, keep_progress, as_json, force, command, terl, evader)
         compare(policies, beyond, run)
         return
     if keep_progress:
@@ -223,7 +228,7 @@ def report_command(
     policy_path = files[0]
     for name in (MARKDOWN_NAME, FIGURE_NAME):
         check_output(out_dir / name, "--out", [("--policy", policy_path)], force)
-    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None)
+    scenarios = resolve_scenarios(scenario_names or REPORT_SUITE, None, None, evader)
     policy = open_policy(policy_path, threads=policy_threads(backend, workers, threads))
     results = evaluate_with_progress(policy, scenarios, episodes, seed, max_steps=max_steps, workers=workers,
                                      backend=backend, address=address, threads=threads, acting=acting).results

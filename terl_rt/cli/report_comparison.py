@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from terl_rt.cli.options import BadInput, evaluate_with_progress, resolve_scenarios, run_backend
+from terl_rt.cli.options import BadInput, evaluate_with_progress, resolve_scenarios, run_backend, with_evader
 from terl_rt.cli.outputs import check_output
 from terl_rt.evaluation.episodes import ScenarioResult
 from terl_rt.files import atomic_outputs
@@ -47,6 +47,8 @@ class ComparisonRun:
     """the command line, as the written files quote it."""
     terl: str = DEFAULT_TERL
     """the recipe stem of the method that stands for the paper's TERL (--terl)."""
+    evader: str | None = None
+    """the evaders of every scenario (--evader; None: each scenario's own)."""
 
     @contextmanager
     def runner(self) -> Iterator[ComparisonRunner]:
@@ -69,7 +71,7 @@ def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> Non
     files = SEED_FILES if seeds else METHOD_FILES
     for name in files.values():
         check_output(run.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], run.force)
-    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None)
+    scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None, run.evader)
     if seeds:
         try:
             named = seeds_in_paper_order(policies, run.terl)
@@ -78,7 +80,7 @@ def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> Non
         if run.terl != DEFAULT_TERL and TERL not in {method for method, _, _ in named}:
             stems = sorted({seed_comparison.method_stem(policy.metadata) for policy in policies})
             raise BadInput(f"--terl {run.terl}: no policy is of that method (their methods: {', '.join(stems)})")
-        worlds = seed_comparison.beyond_scenarios() if beyond else []
+        worlds = with_evader(seed_comparison.beyond_scenarios(), run.evader) if beyond else []
         with run.runner() as runner:
             finished = runner.compare_seeds(named, scenarios, run.episodes, worlds, run.beyond_episodes, run.command)
     else:

@@ -18,6 +18,7 @@ from terl_rt.cli.options import (
     check_acting,
     backend_option,
     episodes_option,
+    evader_option,
     json_option,
     max_steps_option,
     open_policies,
@@ -70,6 +71,7 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
 @scenarios_option
 @scenario_file_option
 @suite_option
+@evader_option
 @episodes_option
 @seed_option
 @max_steps_option
@@ -85,8 +87,8 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
 @json_option
 @force_option
 def sweep_command(
-    policy_paths, scenario_names, scenario_file, suite, episodes, seed, max_steps, workers, backend, address, threads,
-    out, shield, shield_margin, shield_horizon, risk, as_json, force,
+    policy_paths, scenario_names, scenario_file, suite, evader, episodes, seed, max_steps, workers, backend, address,
+    threads, out, shield, shield_margin, shield_horizon, risk, as_json, force,
 ) -> None:
     """Evaluate several policies on several scenarios, the same seeds each (episode k
     with seed + k), as one batch of episodes, and write one results table: DIR/sweep.md
@@ -104,7 +106,7 @@ def sweep_command(
       terl-rt sweep --policy policies/ --suite paper --backend ray --address auto --out sweep
     """
     out_dir = output_folder(out)
-    scenarios = resolve_scenarios(scenario_names, scenario_file, suite)
+    scenarios = resolve_scenarios(scenario_names, scenario_file, suite, evader)
     acting = acting_of(shield, shield_margin, shield_horizon, risk)
     policies = open_policies(policy_paths, threads=policy_threads(backend, workers, threads))
     for policy in policies:

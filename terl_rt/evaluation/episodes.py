@@ -21,8 +21,9 @@ from terl_rt.evaluation.stats import episode_intervals, travel_times
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.protocol import Policy
 from terl_rt.safety.acting import Acting
+from terl_rt.sim.evader import DEFAULT_EVADER
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
-from terl_rt.sim.scenario import Scenario
+from terl_rt.sim.scenario import Scenario, scenario_label
 
 RESULTS_SCHEMA = 2
 """Version of the per-episode result fields (`ScenarioResult.episode_rows`, `eval --json`
@@ -64,6 +65,13 @@ class ScenarioResult:
             return None
         decisions = sum(m.decisions or 0 for m in self.per_episode)
         return sum(m.shield_overrides or 0 for m in self.per_episode) / decisions if decisions else float("nan")
+    evader: str = DEFAULT_EVADER
+    """the evaders' behaviour (`Scenario.evader`, a name of terl_rt.sim.evader.EVADERS)."""
+
+    @property
+    def label(self) -> str:
+        """The scenario's name, with the evader where it is not the default: "small-15/still"."""
+        return scenario_label(self.name, self.evader)
 
     @property
     def limit_s(self) -> float:
@@ -118,6 +126,7 @@ class ScenarioResult:
         shield's parameters and the risk measure, with the shield's overrides a pursuer-step)."""
         row = {
             "name": self.name,
+            "evader": self.evader,
             "episodes": self.episodes,
             "seed": self.seed,
             "max_steps": self.max_steps,
@@ -181,5 +190,5 @@ def scenario_result(scenario: Scenario, seed: int, per_episode: Sequence[Episode
     return ScenarioResult(
         name=scenario.name, episodes=len(per_episode), seed=seed, max_steps=scenario.max_steps,
         **asdict(summarize(per_episode)), wall_s=wall_s, per_episode=tuple(per_episode),
-        step_s=scenario.params.dt * scenario.params.substeps, acting=acting,
+        step_s=scenario.params.dt * scenario.params.substeps, acting=acting, evader=scenario.evader,
     )

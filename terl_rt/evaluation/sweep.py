@@ -91,7 +91,7 @@ def run_sweep(
 
 
 TABLE_COLUMNS = (
-    "policy", "policy_sha256", "policy_path", "scenario", "episodes", "seed", "max_steps",
+    "policy", "policy_sha256", "policy_path", "scenario", "evader", "episodes", "seed", "max_steps",
     "success_rate", "success_rate_ci_low", "success_rate_ci_high",
     "travel_time_s_mean", "travel_time_s_std", "travel_time_s_ci_low", "travel_time_s_ci_high",
     "collision_ratio_mean", "collision_ratio_ci_low", "collision_ratio_ci_high",
@@ -110,7 +110,7 @@ def table_rows(sweep: Sweep) -> list[dict]:
         intervals = result.ci95()
         flat = {
             "policy": row.policy, "policy_sha256": row.policy_sha256, "policy_path": row.policy_path,
-            "scenario": result.name,
+            "scenario": result.name, "evader": result.evader,
             "episodes": result.episodes, "seed": result.seed, "max_steps": result.max_steps,
             "success_rate": result.success_rate, "travel_time_s_mean": result.travel_time_s_mean,
             "travel_time_s_std": result.travel_time_s_std, "collision_ratio_mean": result.collision_ratio_mean,
@@ -146,7 +146,8 @@ def sweep_markdown(sweep: Sweep) -> str:
         result = row.result
         ci = result.ci95()
         lines.append(
-            f"| {row.policy}{f' [{result.acting.label}]' if result.acting.label else ''} | {Path(row.policy_path).name} | `{row.policy_sha256[:12]}` | {result.name} "
+            f"| {row.policy}{f' [{result.acting.label}]' if result.acting.label else ''} | {Path(row.policy_path).name} "
+            f"| `{row.policy_sha256[:12]}` | {result.label} "
             f"| {result.episodes} "
             f"| {result.success_rate:.2f} {format_interval(ci['success_rate'], 2)} "
             f"| {result.travel_time_s_mean:.1f} ± {result.travel_time_s_std:.1f} {format_interval(ci['travel_time_s'], 1)} "

@@ -1,5 +1,5 @@
-"""Re-simulate a logged episode from its scenario, seed and actions, bit for bit
-(`terl-rt replay --verify`).
+"""Re-simulate a logged episode from its scenario (its evader included), seed and actions,
+bit for bit (`terl-rt replay --verify`).
 
 The simulator is deterministic (same scenario, seed and actions give the same episode),
 so every /state of a log must come out of the simulator again exactly: float64 fields
@@ -19,6 +19,7 @@ import numpy as np
 from terl_rt.logs.format import EpisodeLogError
 from terl_rt.logs.reader import EpisodeLogReader, LoggedStep
 from terl_rt.sim.metrics import EpisodeMetrics
+from terl_rt.sim.scenario import scenario_label
 from terl_rt.sim.simulator import Simulator
 from terl_rt.sim.state import LOGGED_FIELDS
 from terl_rt.sim.world import WORLD_VERSION
@@ -43,6 +44,8 @@ class VerifyReport:
     episode: int
     scenario: str
     seed: int
+    evader: str
+    """the evaders' behaviour the episode was re-simulated with (`Scenario.evader`)."""
     steps_checked: int
     """logged steps compared (after the reset frame)."""
     complete: bool
@@ -54,8 +57,9 @@ class VerifyReport:
         return self.mismatch is None
 
     def format(self) -> str:
-        """One line, e.g. "episode 0 (small-11, seed 0): ok, 57 steps bit-identical"."""
-        head = f"episode {self.episode} ({self.scenario}, seed {self.seed})"
+        """One line, e.g. "episode 0 (small-11, seed 0): ok, 57 steps bit-identical" (the scenario
+        "small-11/still" with another evader than the paper's)."""
+        head = f"episode {self.episode} ({scenario_label(self.scenario, self.evader)}, seed {self.seed})"
         if self.mismatch is not None:
             m = self.mismatch
             return f"{head}: MISMATCH at step {m.step}, {m.field}: {m.detail}"
@@ -64,7 +68,7 @@ class VerifyReport:
 
     def to_dict(self) -> dict:
         return {
-            "episode": self.episode, "scenario": self.scenario, "seed": self.seed,
+            "episode": self.episode, "scenario": self.scenario, "evader": self.evader, "seed": self.seed,
             "steps_checked": self.steps_checked, "complete": self.complete, "ok": self.ok,
             "mismatch": None if self.mismatch is None else {
                 "step": self.mismatch.step, "field": self.mismatch.field, "detail": self.mismatch.detail,
@@ -119,7 +123,7 @@ def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
             f"(evaluate again to log them in this version)"
         )
     entry = reader.episode(episode)
-    simulator = Simulator(entry.scenario, seed=entry.seed)
+    simulator = Simulator(entry.scenario, seed=entry.seed)  # with the evader the scenario names
     simulator.reset()
     mismatch: Mismatch | None = None
     checked = 0
@@ -150,6 +154,6 @@ def verify(path: str | os.PathLike, episode: int = 0) -> VerifyReport:
                 last_step, "metrics", f"recorded {entry.metrics.to_dict()}, simulated {simulator.metrics().to_dict()}"
             )
     return VerifyReport(
-        path=Path(path), episode=episode, scenario=entry.scenario.name, seed=entry.seed,
+        path=Path(path), episode=episode, scenario=entry.scenario.name, seed=entry.seed, evader=entry.scenario.evader,
         steps_checked=checked, complete=entry.complete, mismatch=mismatch,
     )

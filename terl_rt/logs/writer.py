@@ -224,7 +224,7 @@ class EpisodeLogWriter:
         if self._scenes:
             params = episode.scenario.params
             status = (
-                f"{episode.scenario.name}  episode {episode.number}  step {record.step}  "
+                f"{episode.scenario.label}  episode {episode.number}  step {record.step}  "
                 f"t={record.step * episode.step_ns / 1e9:g} s  "
                 f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
                 f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"

@@ -278,7 +278,7 @@ def render_markdown(
         paper = _paper_cells(group)
         ci = r.ci95()
         lines.append(
-            f"| {r.name} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{ci_text(ci, 'success_rate', 2)} "
+            f"| {r.label} | {group or '—'} | {r.episodes} | {r.success_rate:.2f}{ci_text(ci, 'success_rate', 2)} "
             f"| {r.travel_time_s_mean:.1f} ± {r.travel_time_s_std:.1f}{ci_text(ci, 'travel_time_s', 1)} "
             f"| {r.travel_time_s_success_mean:.1f}{ci_text(ci, 'travel_time_s_success', 1)} "
             f"| {r.travel_time_s_limit_mean:.1f}{ci_text(ci, 'travel_time_s_limit', 1)} "

@@ -1,12 +1,16 @@
-"""Scripted evaders (world.md section 8): the paper's artificial-potential-field evader.
+"""Scripted evaders (world.md section 8) and their registry: the paper's artificial-potential-field
+evader and the others a scenario can name (docs/simulator.md, "Evaders").
 
 An evader policy maps the world to one action index per evader, [B, M] int64 into
 the evader action table (terl_rt.sim.actions.EVADER_ACTIONS). Any object with the
-`EvaderPolicy.act` signature can be passed to the simulator.
+`EvaderPolicy.act` signature can be passed to the simulator; `EVADERS` names the ones a
+scenario's `evader` field, the command line, the logs and training choose from.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Protocol
 
@@ -23,6 +27,17 @@ APF_SLOTS = 5
 """nearest obstacles, pursuers and other evaders an evader takes into account."""
 ROBOT_SLOTS = np.arange(3 * APF_SLOTS) >= APF_SLOTS
 """[15] bool: the APF slots that hold robots (pursuers, evaders) rather than obstacles."""
+PURSUER_SLOTS = slice(APF_SLOTS, 2 * APF_SLOTS)
+"""the APF slots that hold pursuers."""
+BRAKE_STRAIGHT = 2
+"""evader action (a = -0.4 m/s^2, w = 0): index 0 * 5 + 2."""
+GAP_PULL = 50.0
+"""N, in the APF's force units (world.md section 8): the widest gap's pull on a `WidestGapEvader`.
+An obstacle's push outweighs it within a clearance of about 4.1 m (5000 (1/4.1 - 1/15) / 4.1^2
+= 52), a wall's within about 10.5 m of a 120 m arena (12 x 5000 (1/10.5 - 1/15) / 10.5^1.5 = 48)."""
+NO_BEARING = 10.0
+"""rad: the bearing of an empty pursuer slot in `widest_gap_bisector`, beyond every real one
+(which lie in (-pi, pi]), so that a sort puts empty slots last."""
 
 
 class EvaderPolicy(Protocol):
@@ -73,6 +88,70 @@ class PublishedAPFEvader:
         return (accel_index * len(EVADER_YAW_RATES) + yaw_index).astype(np.int64)
 
 
+class StillEvader(ConstantEvader):
+    """Targets that stand still: every evader brakes and never turns (a = -0.4, w = 0).
+
+    From its start speed (at most 3.5 m/s) it comes to rest within 9 s and then moves only
+    as the currents carry it (world.md section 3); in a world without vortex cores it stays put.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(BRAKE_STRAIGHT)
+
+
+class WidestGapEvader:
+    """An evader that heads for the widest gap in the ring forming around it.
+
+    It perceives what the APF evader perceives (world.md section 8): its 5 nearest perceived
+    pursuers (centre within R + r, those that collided in the last step included) and its 5
+    nearest perceived obstacles. The bearings of those pursuers split the circle around it
+    into angular gaps; it steers for the bisector of the widest (`widest_gap_bisector`), a
+    pull of GAP_PULL along it, plus the APF's obstacle pushes and wall force, all in the world
+    frame (without the published evader's mix of frames). Seeing no pursuer it holds its heading.
+
+    Turning: the yaw rate whose turn in one decision step (w dt substeps) comes closest to the
+    angle from its heading to the total force, ties to the first in table order. Accelerating:
+    seeing pursuers, +0.4 while that angle is within pi/2 (it flees at full speed), else -0.4
+    (a slower turn is a tighter one); seeing none, the APF's free rule: +0.4 below v_min, else 0.
+    """
+
+    def act(self, state: WorldState, geometry: Geometry, params: WorldParams, arena: tuple[float, float]) -> np.ndarray:
+        p = params
+        columns, d_centre = _apf_slots(state, geometry, p)
+        seen = np.isfinite(d_centre[..., PURSUER_SLOTS])  # [B, M, 5]
+        offset = take(geometry.entity_z, columns[..., PURSUER_SLOTS]) - geometry.evader_z[..., None]
+        sees_any = seen.any(-1)
+        direction = np.where(sees_any, widest_gap_bisector(np.angle(offset), seen), state.evader_theta)  # [B, M] rad
+        obstacles = _slot_forces(state, geometry, p, columns, d_centre)[..., :APF_SLOTS].sum(-1)
+        total = GAP_PULL * np.exp(1j * direction) + obstacles + _boundary_force(state.evader_xy, p, arena)[0]
+
+        delta = np.mod(np.angle(total) - state.evader_theta + np.pi, TWO_PI) - np.pi  # [B, M] rad in [-pi, pi)
+        turn = EVADER_YAW_RATES * (p.dt * p.substeps)  # [5] rad turned in one decision step
+        yaw_index = np.abs(turn - delta[..., None]).argmin(-1)
+        slow = np.abs(as_complex(state.evader_vel)) < p.apf_v_min
+        accel_index = np.where(sees_any, np.where(np.abs(delta) <= np.pi / 2, 2, 0), np.where(slow, 2, 1))
+        return (accel_index * len(EVADER_YAW_RATES) + yaw_index).astype(np.int64)
+
+
+def widest_gap_bisector(bearing: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """The bisector of the widest angular gap between the bearings [B, M, K] rad (world frame)
+    of the `seen` [B, M, K] bool pursuers around each evader: [B, M] rad, in (-pi, 2 pi].
+
+    Sorted, bearings b_0 <= ... <= b_{k-1} leave the gaps b_{i+1} - b_i and the one that wraps,
+    b_0 + 2 pi - b_{k-1}; the bisector of gap i is b_i + gap / 2. Ties go to the gap that
+    starts at the smallest bearing. One pursuer leaves one gap of 2 pi: the bisector points
+    straight away from it. Rows without a seen pursuer give NO_BEARING + pi (callers mask them).
+    """
+    ordered = np.sort(np.where(seen, bearing, NO_BEARING), -1)  # seen bearings first, ascending
+    count = seen.sum(-1, keepdims=True)  # [B, M, 1]
+    index = np.arange(bearing.shape[-1])
+    following = np.concatenate([ordered[..., 1:], ordered[..., :1]], -1)
+    gap = np.where(index == count - 1, ordered[..., :1] + TWO_PI - ordered, following - ordered)
+    gap = np.where(index < count, gap, -1.0)
+    widest = gap.argmax(-1)[..., None]
+    return (np.take_along_axis(ordered, widest, -1) + np.take_along_axis(gap, widest, -1) / 2)[..., 0]
+
+
 def _push(distance: np.ndarray, radius: np.ndarray | float, p: WorldParams) -> tuple[np.ndarray, np.ndarray]:
     """Obstacle-style repulsion magnitude and the clearance d = |p| - r - body radius.
 
@@ -96,22 +175,17 @@ def apf_groups(num_pursuers: int, num_evaders: int, num_obstacles: int) -> tuple
     )
 
 
-def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndarray:
-    """Obstacle and robot forces on each evader from its 5 nearest perceived obstacles,
-    pursuers and other evaders: [B, M] complex, world frame (the sums are frame-free).
+def _apf_slots(state: WorldState, geometry: Geometry, p: WorldParams) -> tuple[np.ndarray, np.ndarray]:
+    """What each evader perceives: the entity columns [B, M, 15] of its APF_SLOTS nearest
+    perceived obstacles, then pursuers, then other evaders, and their centre distances
+    [B, M, 15] m (inf in empty slots).
 
-    Slots: APF_SLOTS obstacles, then APF_SLOTS pursuers, then APF_SLOTS evaders.
-    An empty slot has an infinite distance, so its unit vector and force are 0.
+    Candidates: perceived obstacles and perceived robots other than oneself: active
+    evaders, and the pursuers of state.pursuer_perceived (those that collided in the
+    last step included, world.md section 6).
     """
     num_pursuers, num_evaders = geometry.num_pursuers, geometry.num_evaders
-    num_obstacles = state.obstacle_r.shape[1]
     distance = geometry.distance[:, num_pursuers:]  # [B, M, T + 1] m
-    own_z = geometry.evader_z[..., None]
-    own_vel = as_complex(state.evader_vel)[..., None]
-
-    # Candidates: perceived obstacles and perceived robots other than oneself: active
-    # evaders, and the pursuers of state.pursuer_perceived (those that collided in the
-    # last step included, world.md section 6).
     reach = perception_reach(p.robot_radius, p)
     limit = per_entity(
         np.where(state.pursuer_perceived, reach, -1.0),
@@ -120,8 +194,18 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
         blank=-1.0,
     )
     key = candidate_key(distance, num_pursuers, limit)
-    columns = nearest_slots(key, apf_groups(num_pursuers, num_evaders, num_obstacles))
-    d_centre = take_rows(key, columns)  # [B, M, 15] m, inf in empty slots
+    columns = nearest_slots(key, apf_groups(num_pursuers, num_evaders, state.obstacle_r.shape[1]))
+    return columns, take_rows(key, columns)
+
+
+def _slot_forces(
+    state: WorldState, geometry: Geometry, p: WorldParams, columns: np.ndarray, d_centre: np.ndarray,
+) -> np.ndarray:
+    """The force of each slot's entity on its evader: [B, M, 15] complex, world frame,
+    from `_apf_slots`' columns and distances. An empty slot has an infinite distance,
+    so its unit vector and force are 0."""
+    own_z = geometry.evader_z[..., None]
+    own_vel = as_complex(state.evader_vel)[..., None]
 
     # Each slot's entity: position, velocity and APF radius (robots: the body radius).
     slot = take(
@@ -140,7 +224,13 @@ def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndar
     v_ao = ((own_vel - slot[..., 1]) * unit.conj()).real
     velocity_push = np.where(ROBOT_SLOTS & (d < p.apf_d0) & (v_ao > 0), -p.apf_k_v * v_ao * (1.0 / d - 1.0 / p.apf_d0) / d, 0.0)
     along_unit = np.where(~ROBOT_SLOTS | (v_ao >= 0), velocity_push - magnitude, 0.0)
-    return (along_unit * unit).sum(-1)
+    return along_unit * unit
+
+
+def _repulsion(state: WorldState, geometry: Geometry, p: WorldParams) -> np.ndarray:
+    """Obstacle and robot forces on each evader from its 5 nearest perceived obstacles,
+    pursuers and other evaders: [B, M] complex, world frame (the sums are frame-free)."""
+    return _slot_forces(state, geometry, p, *_apf_slots(state, geometry, p)).sum(-1)
 
 
 def _boundary_force(xy: np.ndarray, p: WorldParams, arena: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -160,3 +250,59 @@ def _boundary_force(xy: np.ndarray, p: WorldParams, arena: tuple[float, float]) 
     outside = (walls < 0).any(-1)
     near_wall = (walls < p.apf_d0 / 2).any(-1)
     return force, near_wall, outside
+
+
+# ---------------------------------------------------------------- the registry
+@dataclass(frozen=True)
+class EvaderKind:
+    """An evader behaviour by name: what builds it and one line on what it does."""
+
+    name: str
+    build: Callable[[], EvaderPolicy]
+    """makes a fresh policy (no arguments)."""
+    summary: str
+
+
+DEFAULT_EVADER = "apf"
+"""the evader of the paper's results and of every scenario that names none."""
+EVADERS: dict[str, EvaderKind] = {}
+"""Every evader a scenario can name (`Scenario.evader`), in listing order: the one registry that
+scenario files, the command line, the logs and training read."""
+
+
+class UnknownEvader(ValueError):
+    """A name that is not in EVADERS; the message lists the known ones."""
+
+
+def register_evader(name: str, build: Callable[[], EvaderPolicy], summary: str) -> EvaderKind:
+    """Add an evader to EVADERS under `name` (lower case letters, digits and '-'); a name
+    already there is a ValueError. A scenario that names it runs it in this process and in
+    worker processes that import the module registering it."""
+    if not name or not all(c.islower() or c.isdigit() or c == "-" for c in name):
+        raise ValueError(f"evader name: lower case letters, digits and '-', got {name!r:.60}")
+    if name in EVADERS:
+        raise ValueError(f"evader {name!r}: already registered ({EVADERS[name].summary})")
+    EVADERS[name] = kind = EvaderKind(name, build, summary)
+    return kind
+
+
+def evader_kind(name: str) -> EvaderKind:
+    """The registered evader called `name`; UnknownEvader lists the known ones."""
+    if not isinstance(name, str) or name not in EVADERS:
+        raise UnknownEvader(f"unknown evader {name!r:.60}; the evaders are {', '.join(EVADERS)}")
+    return EVADERS[name]
+
+
+def build_evader(name: str) -> EvaderPolicy:
+    """A fresh policy of the evader called `name` (`evader_kind`)."""
+    return evader_kind(name).build()
+
+
+register_evader(
+    DEFAULT_EVADER, PublishedAPFEvader, "the paper's potential-field evader, published quirks included (world.md section 8)",
+)
+register_evader("still", StillEvader, "brakes and never turns: at rest within 9 s, then carried only by the currents")
+register_evader(
+    "widest-gap", WidestGapEvader,
+    "heads for the bisector of the widest gap between the pursuers it perceives, around obstacles and walls",
+)

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from terl_rt.sim.evader import DEFAULT_EVADER, UnknownEvader, evader_kind
 from terl_rt.sim.params import WorldParams, check_param, check_params, short_repr
 from terl_rt.sim.reward import REWARD_VARIANTS
 
@@ -79,6 +80,10 @@ class Scenario:
     reward: str = "paper"
     """reward variant (world.md section 9): "paper" (the paper's formulas) or "published"
     (what the published trainer optimised). Training only; evaluation metrics ignore it."""
+    evader: str = DEFAULT_EVADER
+    """how the evaders behave: a name of terl_rt.sim.evader.EVADERS (`terl-rt scenarios --evaders`),
+    "apf" (the paper's potential field), "still" or "widest-gap" (docs/simulator.md). A file
+    holds it only when it is not "apf"."""
     initial_state: InitialState | None = None
     """explicit initial states (then the counts above are their lengths). Valid: no two
     robots overlap (centre distance > 2 robot_radius), no robot touches an obstacle (centre
@@ -158,6 +163,8 @@ class Scenario:
             "clear_r": self.clear_r,
             "reward": self.reward,
         }
+        if self.evader != DEFAULT_EVADER:
+            out["evader"] = self.evader
         if self.initial_state is not None:
             out["initial_state"] = self.initial_state.to_dict()
         default = WorldParams()
@@ -177,6 +184,17 @@ class Scenario:
     def replace(self, **changes: Any) -> Scenario:
         """A copy with some fields changed (validated)."""
         return dataclasses.replace(self, **changes)
+
+    @property
+    def label(self) -> str:
+        """The name, with the evader where it is not the default (`scenario_label`)."""
+        return scenario_label(self.name, self.evader)
+
+
+def scenario_label(name: str, evader: str) -> str:
+    """How results name a scenario: "small-15" with the paper's evader, "small-15/widest-gap"
+    with another."""
+    return name if evader == DEFAULT_EVADER else f"{name}/{evader}"
 
 
 # ---------------------------------------------------------------- validation
@@ -250,6 +268,10 @@ def _validate(s: Scenario) -> None:
         raise ScenarioError(
             f"reward: must be one of {', '.join(map(repr, REWARD_VARIANTS))}, got {short_repr(s.reward)}"
         )
+    try:
+        evader_kind(s.evader)
+    except UnknownEvader as err:
+        raise ScenarioError(f"evader: {err}") from None
     p = s.params
     margins = [("evader_spawn_margin", p.evader_spawn_margin), ("pursuer_spawn_margin", p.pursuer_spawn_margin)]
     if s.obstacles and s.initial_state is None:

@@ -15,7 +15,7 @@ from terl_rt.sim.actions import EVADER_ACTIONS, NUM_EVADER_ACTIONS, NUM_PURSUER_
 from terl_rt.sim.collisions import collisions
 from terl_rt.sim.dynamics import as_pairs, integrate, signed_circulation
 from terl_rt.sim.encirclement import encircle, remember_perceived
-from terl_rt.sim.evader import EvaderPolicy, PublishedAPFEvader
+from terl_rt.sim.evader import EvaderPolicy, build_evader
 from terl_rt.sim.geometry import Geometry
 from terl_rt.sim.metrics import EpisodeMetrics, episode_metrics
 from terl_rt.sim.observation import Observation, pursuer_observations, pursuit_status
@@ -122,7 +122,8 @@ class World:
     Environment b draws its episodes from `SeedSequence(seed).spawn(B)[b]`, so a
     `Simulator(scenario, seed)` replays environment 0 of any batch with that seed.
     `seed` is a `Seed`: an int, a np.random.Generator (one draw gives the int) or None
-    (fresh entropy); `self.seed` is the int in force.
+    (fresh entropy); `self.seed` is the int in force. The evaders are the ones the scenario
+    names (`Scenario.evader`) unless `evader_policy` gives others.
     """
 
     def __init__(
@@ -142,7 +143,7 @@ class World:
                 "evader_policy must have an act(state, geometry, params, arena) method (terl_rt.EvaderPolicy) "
                 f"or be None, got {type(evader_policy).__name__} {evader_policy!r:.60}"
             )
-        self.evader_policy = evader_policy if evader_policy is not None else PublishedAPFEvader()
+        self.evader_policy = evader_policy if evader_policy is not None else build_evader(scenario.evader)
         self._seed(seed)
         p, n, m = self.params, scenario.pursuers, scenario.evaders
         self._max_speed = np.concatenate([np.full(n, p.pursuer_max_speed), np.full(m, p.evader_max_speed)])
