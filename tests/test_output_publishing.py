@@ -220,3 +220,27 @@ def test_a_forced_run_is_refused_while_another_run_writes_its_log(files, tmp_pat
     reader = EpisodeLogReader(log)
     assert [(e.seed, e.complete) for e in reader.episodes] == [(0, True), (1, True)] and not reader.truncated
     assert leftovers(tmp_path) == []
+
+
+def _in_a_read_only_folder(folder: Path, args: list[str]) -> subprocess.CompletedProcess | None:
+    """`terl-rt ARGS` run in `folder` made a read-only filesystem (a tmpfs mounted read-only in
+    a mount namespace of its own, `unshare`); None where this machine allows no such mount."""
+    command = ["unshare", "-rm", "sh", "-c", 'mount -t tmpfs -o ro none "$0" && cd "$0" && exec "$@"', str(folder),
+               sys.executable, "-m", "terl_rt", *args]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    try:
+        probe = subprocess.run(command[:5] + [str(folder), "true"], capture_output=True, timeout=60)
+    except FileNotFoundError:
+        return None
+    if probe.returncode != 0:
+        return None
+    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("option, output", [("--log", "rel.mcap"), ("--csv", "rel.csv")])
+def test_a_read_only_working_folder_is_refused_naming_the_output_given(files, tmp_path, option, output):
+    run = _in_a_read_only_folder(tmp_path, eval_args(files, option, output))
+    if run is None:
+        pytest.skip("no read-only mount can be made here (unshare -rm)")
+    assert run.returncode == 2, run.stderr
+    assert run.stderr == f"Error: {option} {output}: cannot write in . (Read-only file system)\n"
