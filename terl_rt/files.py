@@ -140,8 +140,8 @@ def _named(error: OSError, target: Path) -> OSError:
 
 
 class NamingFile:
-    """A binary file object written under a temporary name whose write and flush errors
-    (a full disk, a file too large) name `path`, the file the user asked for."""
+    """A binary file object written under a temporary name whose write, flush and close
+    errors (a full disk, a file too large) name `path`, the file the user asked for."""
 
     def __init__(self, handle: BinaryIO, path: str | os.PathLike):
         self._handle, self._path = handle, Path(path)
@@ -151,6 +151,9 @@ class NamingFile:
 
     def flush(self) -> None:
         self._naming(self._handle.flush)
+
+    def close(self) -> None:
+        self._naming(self._handle.close)  # flushes what is buffered
 
     def _naming(self, call, *args):
         try:

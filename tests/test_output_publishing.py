@@ -244,3 +244,13 @@ def test_a_read_only_working_folder_is_refused_naming_the_output_given(files, tm
         pytest.skip("no read-only mount can be made here (unshare -rm)")
     assert run.returncode == 2, run.stderr
     assert run.stderr == f"Error: {option} {output}: cannot write in . (Read-only file system)\n"
+
+
+def test_a_file_size_limit_ends_a_logged_run_in_one_line_keeping_its_steps_and_no_lock(files, tmp_path):
+    log = tmp_path / "run.mcap"
+    run = _limited_run(12_000, eval_args(files, "--log", log), tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert [line for line in run.stderr.splitlines() if line.startswith("Error: ")] == [f"Error: {log}: File too large"]
+    assert not (tmp_path / f".{log.name}.lock").exists() and leftovers(tmp_path) == []
+    reader = EpisodeLogReader(log)
+    assert reader.truncated and reader.episodes[0].chunks  # up to its last complete step

@@ -310,14 +310,18 @@ class EpisodeLogWriter:
         if self._closed:
             return
         self._closed = True
+        # Each part runs whatever failed before it (a full disk or a file-size limit fails
+        # the summary, then the close's flush): the path is given back in any case.
         try:
             if not self._step_pending and self.staging_path is None:
                 self._mcap.finish()
         finally:
-            self._file.close()
-            if self.staging_path is not None:  # no step was taken: leave `path` as it was
-                self.staging_path.unlink(missing_ok=True)
-            self._hold.release()
+            try:
+                self._file.close()
+            finally:
+                if self.staging_path is not None:  # no step was taken: leave `path` as it was
+                    self.staging_path.unlink(missing_ok=True)
+                self._hold.release()
 
     def _check_open(self) -> None:
         if self._closed:
