@@ -89,6 +89,16 @@ def test_a_held_path_is_refused_to_a_second_hold_until_released_and_leaves_no_fi
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="no flock: no hold")
+def test_the_holder_of_a_path_is_named_while_it_holds_it_and_asking_makes_no_file(tmp_path):
+    target = tmp_path / "run.mcap"
+    assert OutputHold.holder(target) is None and list(tmp_path.iterdir()) == []
+    hold = OutputHold(target)
+    assert OutputHold.holder(target) == str(os.getpid())
+    hold.release()
+    assert OutputHold.holder(target) is None and list(tmp_path.iterdir()) == []
+
+
 def test_a_failed_write_leaves_the_earlier_file_and_no_temporary_file(tmp_path):
     target = tmp_path / "report.md"
     target.write_text("earlier\n")
