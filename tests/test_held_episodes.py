@@ -81,7 +81,7 @@ def test_replay_of_a_log_a_worker_run_is_still_writing_says_so_not_that_it_was_k
     process = start_eval(policy, log)
     try:
         deadline = time.monotonic() + 120
-        while not held_logs(log) and time.monotonic() < deadline:
+        while not (log.exists() and held_logs(log)) and time.monotonic() < deadline:
             assert process.poll() is None, "the run ended before it held an episode back"
             time.sleep(0.05)
         os.kill(process.pid, signal.SIGSTOP)  # the parent writes the log and the side logs: both stand still
