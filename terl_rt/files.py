@@ -51,7 +51,7 @@ class OutputHold:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self._lock = self.path.with_name(f".{self.path.name}.lock")
+        self._lock = self._lock_of(self.path)
         self._fd: int | None = None
         if fcntl is not None:
             self._fd = self._take()
@@ -63,7 +63,7 @@ class OutputHold:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
-                holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+                holder = _holder(fd)
                 os.close(fd)
                 raise OutputBusy(
                     errno.EBUSY, f"another run (pid {holder}) is writing it; wait for it to end or choose another path",
@@ -82,6 +82,30 @@ class OutputHold:
         except FileNotFoundError:
             return False
 
+    @classmethod
+    def holder(cls, path: str | os.PathLike) -> str | None:
+        """The pid of the run that holds `path` now ("unknown" where it wrote none yet),
+        None when no run does (not on Windows: None). Starts no hold: the lock file is
+        probed with a shared lock for an instant, and never made."""
+        if fcntl is None:
+            return None
+        try:
+            fd = os.open(cls._lock_of(Path(path)), os.O_RDONLY)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder(fd)
+        finally:
+            os.close(fd)  # the shared lock, where taken, goes with it
+        return None
+
+    @staticmethod
+    def _lock_of(path: Path) -> Path:
+        """The lock file of `path`: `.NAME.lock` beside it."""
+        return path.with_name(f".{path.name}.lock")
+
     def release(self) -> None:
         """Give the path back (the lock file is removed before it is unlocked)."""
         if self._fd is None:
@@ -89,6 +113,11 @@ class OutputHold:
         self._lock.unlink(missing_ok=True)
         os.close(self._fd)
         self._fd = None
+
+
+def _holder(fd: int) -> str:
+    """The pid the holder wrote in the lock file open at `fd` ("unknown" before it has)."""
+    return os.read(fd, 32).decode(errors="replace").strip() or "unknown"
 
 
 def temporary_beside(path: str | os.PathLike) -> Path:
@@ -140,8 +169,8 @@ def _named(error: OSError, target: Path) -> OSError:
 
 
 class NamingFile:
-    """A binary file object written under a temporary name whose write and flush errors
-    (a full disk, a file too large) name `path`, the file the user asked for."""
+    """A binary file object written under a temporary name whose write, flush and close
+    errors (a full disk, a file too large) name `path`, the file the user asked for."""
 
     def __init__(self, handle: BinaryIO, path: str | os.PathLike):
         self._handle, self._path = handle, Path(path)
@@ -151,6 +180,9 @@ class NamingFile:
 
     def flush(self) -> None:
         self._naming(self._handle.flush)
+
+    def close(self) -> None:
+        self._naming(self._handle.close)  # flushes what is buffered
 
     def _naming(self, call, *args):
         try:

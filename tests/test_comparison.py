@@ -378,3 +378,12 @@ def test_an_existing_comparison_is_refused_before_evaluating_and_replaced_with_f
     assert replaced.exit_code == 0, replaced.output
     assert (tmp_path / "comparison.md").read_text().startswith("# TERL and IQN")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["comparison.json", "comparison.md", "comparison.png"]
+
+
+def test_a_progress_folder_that_is_a_file_is_one_error_line_before_any_evaluation(policies, tmp_path):
+    pytest.importorskip("matplotlib")
+    (tmp_path / ".report-progress").write_text("not a folder")
+    result = invoke("report", "--policy", policies, *TINY, "--out", tmp_path)
+    assert result.exit_code == 2, result.output
+    assert result.stderr == (f"Error: --out {tmp_path}: {tmp_path / '.report-progress'} is not a folder, and the "
+                             "comparison keeps its evaluations there as they finish; move it away\n")

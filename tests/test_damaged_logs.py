@@ -1,7 +1,7 @@
 """Logs with damaged bytes (issue 55): a chunk that fails its CRC check is named by every
 command that reads the log, and the episodes it does not touch read, render and verify
-as they are. The damage is done to copies of the shared log of 2 small-11 episodes of 30
-steps (conftest.logged_eval)."""
+as they are; a log cut off anywhere is noted alike by each (issue 78, item 2). The damage
+is done to copies of the shared log of 2 small-11 episodes of 30 steps (conftest.logged_eval)."""
 
 from __future__ import annotations
 
@@ -96,3 +96,38 @@ def test_a_cut_off_log_with_a_damaged_chunk_says_both(logged_eval, tmp_path):
     reader = EpisodeLogReader(_damaged_copy(logged_eval["log"], tmp_path, cut_after_episode_0_and_flip))
     assert reader.truncated and "cut off" in reader.problem and "fail their CRC check" in reader.problem
     assert [(e.steps, bool(e.damaged)) for e in reader.episodes] == [(9, True), (5, False)]
+
+
+CUTS = 24
+"""offsets a log is cut at, evenly over its bytes, plus the start of every tenth chunk."""
+
+
+def _cut_offsets(log: Path) -> list[int]:
+    size = log.stat().st_size
+    chunk_starts = [offset for episode in EpisodeLogReader(log).episodes for offset, _ in episode.chunks]
+    return sorted({size * k // CUTS for k in range(1, CUTS)} | set(chunk_starts[::10]))
+
+
+def test_render_replay_and_verify_say_alike_where_a_log_was_cut_off(logged_eval, tmp_path):
+    """At any cut each reads up to the last complete step and notes the cut, or all three
+    end in the same one line (nothing readable; render: no complete step to draw)."""
+    data = logged_eval["log"].read_bytes()
+    for offset in _cut_offsets(logged_eval["log"]):
+        cut = tmp_path / f"cut-{offset}.mcap"
+        cut.write_bytes(data[:offset])
+        replayed, verified = invoke("replay", cut), invoke("replay", cut, "--verify")
+        rendered = invoke("render", cut, "-o", tmp_path / f"cut-{offset}.png", "--size", 64)
+        try:
+            reader = EpisodeLogReader(cut)
+        except EpisodeLogError as error:
+            for result in (replayed, verified, rendered):
+                assert_one_error(result, str(error))
+            continue
+        note = f"note: {reader.problem}\n"
+        assert reader.truncated and "cut off" in reader.problem, offset
+        assert replayed.exit_code == 0 and replayed.stderr.endswith(note), (offset, replayed.output)
+        assert verified.exit_code == 0 and verified.stderr.endswith(note), (offset, verified.output)
+        if reader.episodes[0].chunks:
+            assert rendered.exit_code == 0 and rendered.stderr.endswith(note), (offset, rendered.output)
+        else:
+            assert_one_error(rendered, "episode 0 has no complete step to draw", reader.problem)

@@ -8,12 +8,13 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 from one_line import invoke
 from onnx_models import write_test_policy
-from processes import wait_for_log
+from processes import start_eval, wait_for_log
 
 from terl_rt.logs.held import held_folder, held_logs
 from terl_rt.logs.reader import EpisodeLogReader
@@ -72,3 +73,22 @@ def test_side_logs_of_an_earlier_killed_run_go_when_the_log_is_replaced(policy, 
                     "--log", log)
     assert result.exit_code == 0, result.output
     assert not held_folder(log).exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="flock and the run's process group")
+def test_replay_of_a_log_a_worker_run_is_still_writing_says_so_not_that_it_was_killed(policy, tmp_path):
+    log = tmp_path / "live.mcap"
+    process = start_eval(policy, log)
+    try:
+        deadline = time.monotonic() + 120
+        while not (log.exists() and held_logs(log)) and time.monotonic() < deadline:
+            assert process.poll() is None, "the run ended before it held an episode back"
+            time.sleep(0.05)
+        os.kill(process.pid, signal.SIGSTOP)  # the parent writes the log and the side logs: both stand still
+        replayed = invoke("replay", log)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    assert replayed.exit_code == 0, replayed.output
+    assert f"note: a run (pid {process.pid}) is still writing this log" in replayed.stderr
+    assert "wait beside the log for their turn" in replayed.stderr and "killed" not in replayed.stderr

@@ -89,6 +89,16 @@ def test_a_held_path_is_refused_to_a_second_hold_until_released_and_leaves_no_fi
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="no flock: no hold")
+def test_the_holder_of_a_path_is_named_while_it_holds_it_and_asking_makes_no_file(tmp_path):
+    target = tmp_path / "run.mcap"
+    assert OutputHold.holder(target) is None and list(tmp_path.iterdir()) == []
+    hold = OutputHold(target)
+    assert OutputHold.holder(target) == str(os.getpid())
+    hold.release()
+    assert OutputHold.holder(target) is None and list(tmp_path.iterdir()) == []
+
+
 def test_a_failed_write_leaves_the_earlier_file_and_no_temporary_file(tmp_path):
     target = tmp_path / "report.md"
     target.write_text("earlier\n")
@@ -220,3 +230,37 @@ def test_a_forced_run_is_refused_while_another_run_writes_its_log(files, tmp_pat
     reader = EpisodeLogReader(log)
     assert [(e.seed, e.complete) for e in reader.episodes] == [(0, True), (1, True)] and not reader.truncated
     assert leftovers(tmp_path) == []
+
+
+def _in_a_read_only_folder(folder: Path, args: list[str]) -> subprocess.CompletedProcess | None:
+    """`terl-rt ARGS` run in `folder` made a read-only filesystem (a tmpfs mounted read-only in
+    a mount namespace of its own, `unshare`); None where this machine allows no such mount."""
+    command = ["unshare", "-rm", "sh", "-c", 'mount -t tmpfs -o ro none "$0" && cd "$0" && exec "$@"', str(folder),
+               sys.executable, "-m", "terl_rt", *args]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    try:
+        probe = subprocess.run(command[:5] + [str(folder), "true"], capture_output=True, timeout=60)
+    except FileNotFoundError:
+        return None
+    if probe.returncode != 0:
+        return None
+    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("option, output", [("--log", "rel.mcap"), ("--csv", "rel.csv")])
+def test_a_read_only_working_folder_is_refused_naming_the_output_given(files, tmp_path, option, output):
+    run = _in_a_read_only_folder(tmp_path, eval_args(files, option, output))
+    if run is None:
+        pytest.skip("no read-only mount can be made here (unshare -rm)")
+    assert run.returncode == 2, run.stderr
+    assert run.stderr == f"Error: {option} {output}: cannot write in . (Read-only file system)\n"
+
+
+def test_a_file_size_limit_ends_a_logged_run_in_one_line_keeping_its_steps_and_no_lock(files, tmp_path):
+    log = tmp_path / "run.mcap"
+    run = _limited_run(12_000, eval_args(files, "--log", log), tmp_path)
+    assert run.returncode == 2, run.stderr
+    assert [line for line in run.stderr.splitlines() if line.startswith("Error: ")] == [f"Error: {log}: File too large"]
+    assert not (tmp_path / f".{log.name}.lock").exists() and leftovers(tmp_path) == []
+    reader = EpisodeLogReader(log)
+    assert reader.truncated and reader.episodes[0].chunks  # up to its last complete step

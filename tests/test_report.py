@@ -7,6 +7,7 @@ checked against numbers chosen on either side of each goal.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 from made_results import made_result
+from one_line import assert_one_error
 from onnx_models import write_test_policy
 from PIL import Image
 
@@ -324,3 +326,18 @@ def test_report_cli_without_matplotlib_fails_before_evaluating(policy, tmp_path,
     assert result.stderr.startswith("Error: ") and INSTALL_HINT in result.stderr
     assert "small-11" not in result.stderr  # no progress bar: nothing was evaluated
     assert not (tmp_path / "docs").exists()
+
+
+@pytest.mark.parametrize("odd, words", [
+    (lambda path: os.mkfifo(path), ["x.onnx is a FIFO"]),
+    (lambda path: path.symlink_to("gone.onnx"), ["x.onnx is a broken link to gone.onnx"]),
+], ids=["fifo", "dangling-link"])
+def test_a_policy_folder_with_an_onnx_that_is_no_file_is_refused_naming_it(policy, tmp_path, odd, words):
+    folder = tmp_path / "policies"
+    folder.mkdir()
+    (folder / "a.onnx").write_bytes(policy.read_bytes())
+    odd(folder / "x.onnx")
+    result = CliRunner().invoke(cli, ["report", "--policy", str(folder), "--scenario", "small-11", "--episodes", "1",
+                                      "--out", str(tmp_path / "report")])
+    assert_one_error(result, f"--policy {folder}", *words, "not a policy file")
+    assert not (tmp_path / "report").exists()

@@ -1,8 +1,8 @@
 """Starting the `terl-rt` command under pressure (issue 55): Ctrl-C while it loads its
-modules, and an address-space limit (`ulimit -v`). Either ends in one line within seconds,
-never in a traceback, an abort inside a library or a hang. The command runs as a user
-runs it (`python -m terl_rt`, this checkout's terl_rt); every wait polls for the state it
-needs."""
+modules, an address-space limit (`ulimit -v`) and a closed stdout (`>&-`, issue 78, item 3).
+Each ends in one line within seconds, never in a traceback, an abort inside a library or a
+hang. The command runs as a user runs it (`python -m terl_rt`, this checkout's terl_rt);
+every wait polls for the state it needs."""
 
 from __future__ import annotations
 
@@ -107,3 +107,37 @@ def test_under_an_address_space_limit_eval_runs_or_ends_in_one_memory_line(polic
     if status != 0:
         assert status == 2, stderr[-3000:]
         assert "memory" in _one_error_line(stderr)
+
+
+
+CLOSED_STDOUT_RUNS = {
+    "bench": "bench sim --scenario small-11 --envs 1",
+    "eval": "eval {small} --log run.mcap --csv episodes.csv",
+    "info": "info {policy}",
+    "layout": "layout -o layout.json",
+    "optimize": "optimize {policy} -o fast.onnx",
+    "render": "render {log} -o final.png",
+    "replay": "replay {log} --verify",
+    "report": "report {small} --out report",
+    "scenarios": "scenarios",
+    "sweep": "sweep {small} --out sweep",
+}
+"""A run of each terl-rt command, each of which prints results ({policy}, {log}: the test's)."""
+
+
+def test_every_command_is_tried_with_a_closed_stdout():
+    from terl_rt.cli.main import cli
+
+    assert sorted(CLOSED_STDOUT_RUNS) == sorted(cli.commands)
+
+
+@pytest.mark.parametrize("name", sorted(CLOSED_STDOUT_RUNS))
+def test_a_closed_stdout_ends_a_command_in_one_line_before_it_does_anything(policy_path, logged_eval, tmp_path, name):
+    """`terl-rt ... >&-`: the results would be lost, so nothing runs and nothing is written."""
+    small = f"--policy {policy_path} --scenario small-11 --episodes 1"
+    args = CLOSED_STDOUT_RUNS[name].format(small=small, policy=policy_path, log=logged_eval["log"]).split()
+    run = subprocess.run([sys.executable, "-m", "terl_rt", *args], cwd=tmp_path, env=ENV, stderr=subprocess.PIPE,
+                         text=True, timeout=60, preexec_fn=lambda: os.close(1))
+    assert run.returncode == 2
+    assert _one_error_line(run.stderr).startswith("Error: stdout is closed"), run.stderr
+    assert list(tmp_path.iterdir()) == []

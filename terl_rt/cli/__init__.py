@@ -17,8 +17,11 @@ def main() -> None:
     never in an abort inside a library: an address-space limit below MIN_ADDRESS_SPACE
     is refused first, NumPy's BLAS runs one thread, and its buffer is mapped before
     anything else is allocated (`_map_blas_buffer`). Until then this package imports
-    nothing the interpreter has not loaded.
+    nothing the interpreter has not loaded. A closed stdout (`>&-`), where every command
+    prints its results, ends in one line and exit status 2 before any work is done.
     """
+    if sys.stdout is None:  # what Python makes of a closed file descriptor 1
+        _fail("stdout is closed, and terl-rt prints its results there; redirect it to a file or /dev/null", 2)
     try:
         _check_address_space()
         import os
@@ -73,6 +76,7 @@ def _map_blas_buffer() -> None:
 
 
 def _fail(message: str, status: int) -> None:
-    """One error line on stderr, then exit with `status`."""
-    sys.stderr.write(f"Error: {message}\n")
+    """One error line on stderr (where it is open), then exit with `status`."""
+    if sys.stderr is not None:
+        sys.stderr.write(f"Error: {message}\n")
     sys.exit(status)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, redirect_stdout
@@ -96,19 +99,38 @@ def open_policy(path: str | None, threads: int | None = None) -> OnnxPolicy:
 def policy_files(given: tuple[str, ...]) -> list[str | None]:
     """The policy files of a repeated --policy, in order: a file as given, a folder's *.onnx
     files by name; [None] (the default policy) when none is given. BadInput for a folder
-    without one."""
+    without one, or with a *.onnx that is no regular file (it is never skipped unseen)."""
     if not given:
         return [None]
     files: list[str | None] = []
     for path in given:
         if Path(path).is_dir():
-            found = sorted(str(file) for file in Path(path).glob("*.onnx") if file.is_file())
+            found = sorted(Path(path).glob("*.onnx"))
             if not found:
                 raise BadInput(f"--policy {path} is a folder without .onnx files")
-            files += found
+            for file in found:
+                kind = _not_a_file(file)
+                if kind is not None:
+                    raise BadInput(f"--policy {path}: {file.name} is {kind}, not a policy file; remove it or "
+                                   "name the policies one by one")
+            files += map(str, found)
         else:
             files.append(path)
     return files
+
+
+def _not_a_file(path: Path) -> str | None:
+    """What `path` is, in words, when it is no regular file ("a FIFO", "a broken link to X");
+    None for a regular file."""
+    try:
+        mode = path.stat().st_mode
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            return "a symlink loop"
+        return f"a broken link to {os.readlink(path)}" if path.is_symlink() else f"unreadable ({error.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    return "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or a socket"
 
 
 def open_policies(paths: tuple[str, ...], threads: int | None = None) -> list[OnnxPolicy]:

@@ -88,10 +88,13 @@ def _check_writable(out: Path, option: str) -> None:
     """BadInput unless a file can be made in `out`'s folder (permissions, a read-only or
     full filesystem): said before the run, not after it."""
     probe = temporary_beside(out)
+    made = False
     try:
         with open(probe, "xb") as handle:
+            made = True
             handle.write(b"\0")
     except OSError as error:
         raise BadInput(f"{option} {out}: cannot write in {out.parent} ({error.strerror or error})") from None
     finally:
-        probe.unlink(missing_ok=True)
+        if made:  # only what was made: a read-only disk refuses to remove even a file that is not there
+            probe.unlink(missing_ok=True)

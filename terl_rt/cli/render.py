@@ -9,6 +9,7 @@ import click
 from terl_rt.cli.options import IntRange
 from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.files import atomic_output
+from terl_rt.logs.reader import EpisodeLogReader
 from terl_rt.logs.render import FORMATS, SIZE_RANGE, RenderError, render
 
 
@@ -28,6 +29,7 @@ def render_command(log: str, episode: int, output: str, fps: float, every: int |
     """Render an episode: arena, obstacles, vortex cores with their rotation, pursuers
     with heading and trails, evaders (green once encircled), step and metrics in the title.
     An existing OUT is replaced only with --force (never the LOG itself), once the image is complete.
+    A log that was cut off or is damaged is drawn up to its last complete step, with a note saying so.
 
     \b
     Examples:
@@ -38,6 +40,9 @@ def render_command(log: str, episode: int, output: str, fps: float, every: int |
     if Path(output).suffix.lower() not in FORMATS:
         raise RenderError(f"{output}: unknown output format {Path(output).suffix or '(none)'!r}; use one of {', '.join(FORMATS)}")
     out = check_output(output, "-o", [("LOG", log)], force)
+    reader = EpisodeLogReader(log)
     with atomic_output(out, replace=force) as staging:
-        render(log, staging, episode=episode, fps=fps, every=every, size=size)
+        render(reader, staging, episode=episode, fps=fps, every=every, size=size)
     click.echo(f"wrote {out}")
+    if reader.problem:  # cut off or damaged: drawn up to its last complete step, as replay notes
+        click.echo(f"note: {reader.problem}", err=True)

@@ -7,6 +7,7 @@ import json
 import click
 
 from terl_rt.cli.options import episode_option, json_option, policy_json
+from terl_rt.files import OutputHold
 from terl_rt.logs.held import held_logs
 from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 from terl_rt.logs.resimulate import verify
@@ -58,13 +59,20 @@ def _episode_line(entry: LoggedEpisode) -> str:
     return f"{entry.number:>4}  {entry.scenario.label:<14}{entry.seed:>6}{entry.steps:>7}  {outcome}{damage}"
 
 
-def _held_note(log: str) -> str | None:
-    """The note on the side logs a killed batched run left beside `log` (terl_rt.logs.held), if any."""
+def _notes(log: str, reader: EpisodeLogReader) -> list[str]:
+    """What is said under the output about `log`: that a run is still writing it, what it
+    lost (cut off, damaged chunks), and the side logs beside it (terl_rt.logs.held): those
+    of the episodes a running batched run holds back for their turn, or that a killed one left."""
+    writer = OutputHold.holder(log)
+    notes = [] if writer is None else [f"a run (pid {writer}) is still writing this log: it reads as far as it is written"]
+    if reader.problem:
+        notes.append(reader.problem)
     held = held_logs(log)
-    if not held:
-        return None
-    return (f"the run was killed with {len(held)} more episode(s) held beside the log, each a log of its own: "
-            f"{held[0].parent}/ (terl-rt replay {held[0]})")
+    if held:
+        where = f"each a log of its own: {held[0].parent}/ (terl-rt replay {held[0]})"
+        notes.append(f"{len(held)} more episode(s) wait beside the log for their turn, {where}" if writer is not None
+                     else f"the run was killed with {len(held)} more episode(s) held beside the log, {where}")
+    return notes
 
 
 @click.command()
@@ -77,8 +85,8 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
     events of one (--episode K; under --shield, how often it overrode each pursuer), or
     verify episodes by re-simulating them (--verify:
     every episode, or K). Exit status 1 when a verification finds a mismatch. A batched
-    run that was killed leaves the episodes it held back for their turn in LOG.held/,
-    one log each; the note under the list names them.
+    run holds the episodes waiting for their turn in LOG.held/, one log each, and a killed
+    one leaves them there; the notes under the list name them, and a run still writing LOG.
 
     \b
     Examples:
@@ -99,8 +107,8 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
         else:
             for report in reports:
                 click.echo(report.format())
-            if reader.problem:
-                click.echo(f"note: {reader.problem}", err=True)
+            for note in _notes(log, reader):
+                click.echo(f"note: {note}", err=True)
         if not all(r.ok for r in reports):
             click.get_current_context().exit(1)
         return
@@ -138,7 +146,5 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
         for event in events:
             details = ", ".join(f"{k} {v}" for k, v in event.items() if k not in ("step", "type"))
             click.echo(f"  step {event['step']:>5}  {event['type']:<12} {details}")
-    if reader.problem:
-        click.echo(f"note: {reader.problem}", err=True)
-    if _held_note(log):
-        click.echo(f"note: {_held_note(log)}", err=True)
+    for note in _notes(log, reader):
+        click.echo(f"note: {note}", err=True)

@@ -19,7 +19,14 @@ from terl_rt.paper import seed_comparison
 from terl_rt.paper.comparison import DEFAULT_TERL
 from terl_rt.paper.numbers import TERL
 from terl_rt.paper.report import REPORT_SUITE
-from terl_rt.paper.runner import METHOD_FILES, SEED_FILES, ComparisonRunner, over_seeds, seeds_in_paper_order
+from terl_rt.paper.runner import (
+    METHOD_FILES,
+    PROGRESS_FOLDER,
+    SEED_FILES,
+    ComparisonRunner,
+    over_seeds,
+    seeds_in_paper_order,
+)
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.sim.scenario import Scenario
 
@@ -71,6 +78,10 @@ def compare(policies: list[OnnxPolicy], beyond: bool, run: ComparisonRun) -> Non
     files = SEED_FILES if seeds else METHOD_FILES
     for name in files.values():
         check_output(run.out_dir / name, "--out", [("--policy", policy.path) for policy in policies], run.force)
+    progress = run.out_dir / PROGRESS_FOLDER
+    if (progress.exists() or progress.is_symlink()) and not progress.is_dir():  # said now, not at the first result
+        raise BadInput(f"--out {run.out_dir}: {progress} is not a folder, and the comparison keeps its evaluations "
+                       "there as they finish; move it away")
     scenarios = resolve_scenarios(run.scenario_names or REPORT_SUITE, None, None, run.evader)
     if seeds:
         try:

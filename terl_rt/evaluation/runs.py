@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ from typing import Any, Protocol
 
 from terl_rt.logs.format import StepRecord
 from terl_rt.logs.held import HeldEpisodes
-from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.logs.writer import EpisodeLogWriter, sigint_deferred
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -167,7 +168,10 @@ class InOrderLog:
     Only one episode is written as its steps arrive (the lowest that has not ended); the
     steps of later episodes wait in memory until it ends, and in their side logs
     (`HeldEpisodes`) until they are in the log. An interrupted run writes what waits
-    (`flush_waiting`) before it closes the log.
+    (`flush_waiting`) before it closes the log. Ctrl-C is held back within each change of
+    the log and of what waits (a message kept for later, a step written with the episode
+    it begins, a waiting step moved to the log, an episode's end): a run stopped at any
+    moment stops between two of them, so what waits is written once, and nothing twice.
     """
 
     def __init__(self, specs: Sequence[EpisodeSpec], log: EpisodeLogWriter | None, finished: Finished):
@@ -175,55 +179,78 @@ class InOrderLog:
         self.current = 0
         """the spec being written (every lower one is done)."""
         self.begun = False
-        self.waiting: dict[int, list[StepRecord]] = {}
+        """the current spec's episode is begun in the log."""
+        self.waiting: dict[int, deque[StepRecord]] = {}
+        """spec -> its steps not yet in the log, oldest first."""
         self.ended: dict[int, EpisodeMetrics] = {}
+        """spec -> its metrics, for later specs that ended before their turn."""
         self.held = None if log is None else HeldEpisodes(log.path, log.policy_info)
 
     def receive(self, kind: str, number: int, payload) -> None:
         if number != self.current:
-            if kind == "step":
-                self.waiting.setdefault(number, []).append(payload)
-                if self.held is not None:
-                    spec = self.specs[number]
-                    self.held.write_step(number, spec.scenario, spec.seed, spec.index, payload)
-            else:
-                self.ended[number] = payload
-                if self.held is not None:
-                    self.held.end_episode(number, payload)
-            return
-        if kind == "step":
-            self._write(payload)
-            return
-        self._end(payload)
-        while self.current in self.waiting or self.current in self.ended:
-            self._write_waiting(self.current)
-            if self.current not in self.ended:
-                break
-            self._end(self.ended.pop(self.current))
+            with sigint_deferred():
+                self._keep(kind, number, payload)
+        elif kind == "step":
+            with sigint_deferred():
+                self._write(payload)
+        else:
+            with sigint_deferred():
+                self._end(payload)
+            self._catch_up()
 
     def flush_waiting(self) -> None:
         """Write every waiting step, in spec order; the episodes that did not end stay unended."""
         for number in sorted(set(self.waiting) | set(self.ended)):
             if self.log is None:
                 break
-            if self.begun:
-                self.log.abandon_episode()
-            self.current, self.begun = number, False
+            if number != self.current:  # the current one (stopped while it caught up) goes on
+                with sigint_deferred():
+                    if self.begun:
+                        self.log.abandon_episode()
+                    self.current, self.begun = number, False
             self._write_waiting(number)
             if number in self.ended:
-                self._end(self.ended.pop(number), report=False)
+                with sigint_deferred():
+                    self._end(self.ended.pop(number), report=False)
 
     def close(self) -> None:
         """Close the side logs; those of episodes that never reached the log stay on disk."""
         if self.held is not None:
             self.held.close()
 
+    def _keep(self, kind: str, number: int, payload) -> None:
+        """Keep a message of a later spec until its turn (and in its side log)."""
+        if kind == "step":
+            self.waiting.setdefault(number, deque()).append(payload)
+            if self.held is not None:
+                spec = self.specs[number]
+                self.held.write_step(number, spec.scenario, spec.seed, spec.index, payload)
+        else:
+            self.ended[number] = payload
+            if self.held is not None:
+                self.held.end_episode(number, payload)
+
+    def _catch_up(self) -> None:
+        """Write the specs whose turn has come, as far as they have run."""
+        while self.current in self.waiting or self.current in self.ended:
+            self._write_waiting(self.current)
+            if self.current not in self.ended:
+                break
+            with sigint_deferred():
+                self._end(self.ended.pop(self.current))
+
     def _write_waiting(self, number: int) -> None:
-        """Write the waiting steps of episode `number` (the current one) and drop its side log."""
-        for record in self.waiting.pop(number, []):
-            self._write(record)
-        if self.held is not None:
-            self.held.release(number)
+        """Move the waiting steps of spec `number` (the current one) to the log, one at a
+        time, then drop its side log."""
+        steps = self.waiting.get(number, deque())
+        while steps:
+            with sigint_deferred():
+                self._write(steps[0])
+                steps.popleft()
+        with sigint_deferred():
+            self.waiting.pop(number, None)
+            if self.held is not None:
+                self.held.release(number)
 
     def _begin(self) -> None:
         spec = self.specs[self.current]

@@ -369,14 +369,14 @@ def _frame_steps(last: int, every: int) -> list[int]:
 
 
 def render(
-    path: str | os.PathLike,
+    log: str | os.PathLike | EpisodeLogReader,
     out: str | os.PathLike,
     episode: int = 0,
     fps: float = 10.0,
     every: int | None = None,
     size: int = 640,
 ) -> Path:
-    """Render episode `episode` (file order) of the log at `path` to `out`.
+    """Render episode `episode` (file order) of `log` (a path, or the log opened) to `out`.
 
     The suffix of `out` picks the format: .png (final frame), .gif or .mp4 (one frame
     every `every` steps, `fps` frames per second; every=None: 1, or as many as keep a
@@ -399,11 +399,12 @@ def render(
         except ImportError:
             raise RenderError(f"writing .mp4 needs the video extra: {VIDEO_INSTALL}") from None
 
-    reader = EpisodeLogReader(path)
+    reader = log if isinstance(log, EpisodeLogReader) else EpisodeLogReader(log)
     entry = reader.episode(episode)
     states = [step.state for step in reader.steps(episode)]
     if not states:
-        raise RenderError(f"{path}: episode {episode} has no complete step to draw")
+        why = f"; {reader.problem}" if reader.problem else ""
+        raise RenderError(f"{reader.path}: episode {episode} has no complete step to draw{why}")
     last = len(states) - 1
     fonts = _fonts()
     canvas = _Canvas.of(entry.scenario.arena, size, _SUPERSAMPLE, fonts[1])

@@ -50,8 +50,10 @@ _NO_CHUNK_LIMIT = 1 << 40
 
 
 @contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold back Ctrl-C (SIGINT) inside the block and deliver it at its end (main thread only)."""
+def sigint_deferred() -> Iterator[None]:
+    """Hold back Ctrl-C (SIGINT) inside the block and deliver it at its end (main thread
+    only): what the block changes is changed whole. Blocks nest: an inner one hands the
+    signal on to the outer one at its end."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -264,9 +266,9 @@ class EpisodeLogWriter:
         encoded = [(topic, scene_protobuf(payload) if topic == TOPIC_WORLD else encode(payload)) for topic, payload in messages]
 
         # From the first message to the flush the step is half in the chunk buffer: Ctrl-C
-        # waits until the step is on disk, and any other interruption keeps close() from
-        # writing the half step out.
-        with _sigint_deferred():
+        # waits until the step is on disk and counted (the log published at its first
+        # step), and any other interruption keeps close() from writing the half step out.
+        with sigint_deferred():
             self._step_pending = True
             for topic, data in encoded:
                 self._mcap.add_message(
@@ -276,12 +278,12 @@ class EpisodeLogWriter:
                 self._sequence[topic] += 1
             self._mcap.flush()
             self._step_pending = False
-        if self._scenes:
-            episode.scene_ids = entity_ids(scene)
-        self.steps_written += 1
-        if self.staging_path is not None:
-            publish(self.staging_path, self.path, self._replace)
-            self.staging_path = None
+            if self._scenes:
+                episode.scene_ids = entity_ids(scene)
+            self.steps_written += 1
+            if self.staging_path is not None:
+                publish(self.staging_path, self.path, self._replace)
+                self.staging_path = None
 
     def end_episode(self, metrics: EpisodeMetrics) -> None:
         """Close the current episode with its final metrics."""
@@ -318,14 +320,18 @@ class EpisodeLogWriter:
         if self._closed:
             return
         self._closed = True
+        # Each part runs whatever failed before it (a full disk or a file-size limit fails
+        # the summary, then the close's flush): the path is given back in any case.
         try:
             if not self._step_pending and self.staging_path is None:
                 self._mcap.finish()
         finally:
-            self._file.close()
-            if self.staging_path is not None:  # no step was taken: leave `path` as it was
-                self.staging_path.unlink(missing_ok=True)
-            self._hold.release()
+            try:
+                self._file.close()
+            finally:
+                if self.staging_path is not None:  # no step was taken: leave `path` as it was
+                    self.staging_path.unlink(missing_ok=True)
+                self._hold.release()
 
     def _check_open(self) -> None:
         if self._closed:
