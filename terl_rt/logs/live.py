@@ -10,9 +10,10 @@ Threads and backpressure: `write_step` builds the step's messages in the run's t
 hands them to the SDK, which queues them for each subscribed client (at most `backlog`
 messages: a client that reads slower loses the oldest) and sends them from threads of its
 own. Nothing waits on a client, so a slow client, or one that vanishes, never holds the run
-back or fails it, and `close` waits for it at most STOP_WAIT_S. /world, Foxglove's 3-D scene and most of a step's building time, is built
-only while a client subscribes to it; the first scene a client gets in an episode deletes
-every entity first, as an episode's first scene does.
+back or fails it, and `close` waits for one at most STOP_WAIT_S. /world, Foxglove's 3-D
+scene and most of a step's building time, is built only while a client subscribes to it;
+the first scene built in an episode, at its step 0 or when a client subscribes later,
+deletes every entity first (what a viewer still shows of an earlier episode).
 
 With workers or on Ray the steps come back to the process that runs the evaluation, which
 gives them to every sink in episode order (terl_rt.evaluation.runs): the live view shows one
@@ -46,12 +47,13 @@ WATCH_POLL_S = 0.05
 """s: how often `wait_watched` looks for a subscribed client."""
 FLUSH_S = 0.25
 """s: how long `close` leaves the SDK to send what it has queued for subscribed clients before
-it stops the server (the SDK's stop drops what is still queued: without it, the last steps
-of a replay were lost one time in five)."""
+it stops the server (the SDK's stop drops what is still queued: closed at once, one server
+in five lost the last ten messages it was given)."""
 STOP_WAIT_S = 2.0
-"""s: how long `close` waits for the server to see its clients off. The SDK's stop waits for
-each client to take what was queued for it, which a client that reads nothing (a frozen
-viewer) never does: past this, its connection is left to end with the process."""
+"""s: how long `close` waits for the server to see its clients off. The SDK's stop waits until
+each client's connection takes its goodbye, which that of a client that reads nothing (a
+frozen viewer) never does: past this, the connection is left to end with the process (the
+server takes no new client from the start of the stop)."""
 
 
 class LiveMissing(ImportError):
