@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
+from contextlib import ExitStack
 from pathlib import Path
 
 import click
 
 import terl_rt
+from terl_rt.cli.live import live_option, open_live
 from terl_rt.cli.options import (
     acting_of,
     acting_options,
@@ -115,6 +117,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @backend_option
 @address_option
 @log_option
+@live_option("Serve every step live, as it is taken,")
 @json_option
 @click.option(
     "--csv", "csv_path", type=str, default=None, metavar="FILE.csv",
@@ -125,7 +128,7 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @force_option
 def eval_command(
     policy_path, scenario_names, scenario_file, suite, evader, episodes, seed, max_steps, workers, backend, address,
-    log_path, as_json, csv_path, threads, shield, shield_margin, shield_horizon, risk, force,
+    log_path, live, as_json, csv_path, threads, shield, shield_margin, shield_horizon, risk, force,
 ) -> None:
     """Evaluate a policy: success rate, travel time (s) over the successful episodes,
     collision ratio, steps and wall time per scenario, with 95 % confidence intervals over
@@ -140,6 +143,8 @@ def eval_command(
     taken, and an episode whose worker dies is run again elsewhere, counted once.
     --shield and --risk change how the policy acts (docs/safety.md); the table's first line,
     the JSON ("acting") and the CSV name such a run, and a shielded one counts its overrides.
+    --live serves the steps to Foxglove while the run goes on, in episode order as the log
+    holds them (with --workers too); a slow or lost viewer never holds the run back.
 
     \b
     Examples:
@@ -149,6 +154,7 @@ def eval_command(
       terl-rt eval --policy my.onnx --scenario medium-48 --episodes 50 --seed 100
       terl-rt eval --suite paper --workers 2 --csv episodes.csv
       terl-rt eval --episodes 5 --log run.mcap         # then: terl-rt replay run.mcap
+      terl-rt eval --suite paper --live                # watch in Foxglove: ws://127.0.0.1:8765
       terl-rt eval --scenario-file my-world.json --json
       terl-rt eval --scenario large-80 --evader widest-gap   # rows: large-80/widest-gap
     """
@@ -163,9 +169,12 @@ def eval_command(
     for option, path in (("--log", log_path), ("--csv", csv_path)):
         if path is not None:  # the default policy too
             check_output(path, option, [("--policy", policy.path)], force)
-    with stdout_kept_for_json(as_json):  # until the backend (Ray) has shut down
+    with ExitStack() as live_view, stdout_kept_for_json(as_json):  # until the backend (Ray) has shut down
+        sinks = [log_path] if log_path is not None else []
+        if live is not None:
+            sinks.append(live_view.enter_context(open_live(live)))
         evaluation = evaluate_with_progress(
-            policy, scenarios, episodes, seed, max_steps=max_steps, log=log_path, replace_log=force, workers=workers,
+            policy, scenarios, episodes, seed, max_steps=max_steps, log=sinks, replace_log=force, workers=workers,
             backend=backend, address=address, threads=threads, acting=acting,
         )
     results, info = list(evaluation.results), evaluation.policy

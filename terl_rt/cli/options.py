@@ -6,7 +6,7 @@ import errno
 import os
 import stat
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager, redirect_stdout
 from pathlib import Path
 from typing import Any
@@ -16,7 +16,7 @@ import click
 from terl_rt.command_line import address_option  # noqa: F401 (shared with python -m training)
 from terl_rt.evaluation.backends import BACKENDS, RayMissing, open_backend
 from terl_rt.evaluation.episodes import Progress
-from terl_rt.evaluation.evaluate import Evaluation, evaluate
+from terl_rt.evaluation.evaluate import Evaluation, LogTarget, evaluate
 from terl_rt.evaluation.runs import Backend
 from terl_rt.policy import shipped
 from terl_rt.policy.onnx_policy import OnnxPolicy
@@ -207,7 +207,7 @@ def evaluate_with_progress(
     episodes: int,
     seed: int,
     max_steps: int | None = None,
-    log: str | None = None,
+    log: LogTarget | Sequence[LogTarget] | None = None,
     replace_log: bool = True,
     workers: int | None = None,
     backend: Backend | str = "local",

@@ -6,9 +6,11 @@ import json
 
 import click
 
-from terl_rt.cli.options import episode_option, json_option, policy_json
+from terl_rt.cli.live import live_option, open_live
+from terl_rt.cli.options import BadInput, FloatRange, episode_option, json_option, policy_json
 from terl_rt.files import OutputHold
 from terl_rt.logs.held import held_logs
+from terl_rt.logs.live import stream_log
 from terl_rt.logs.reader import EpisodeLogReader, LoggedEpisode
 from terl_rt.logs.resimulate import verify
 
@@ -37,6 +39,9 @@ def _per_pursuer(counts) -> str:
     """Pursuers the shield overrode and how often, e.g. "3 x 2, 7 x 1"; "none"."""
     return ", ".join(f"{i} x {n}" for i, n in enumerate(counts.tolist()) if n) or "none"
 
+
+MIN_RATE, MAX_RATE = 0.01, 1000.0
+"""--rate's range: a hundredth of real time to a thousand times it."""
 
 LIST_HEADER = (
     f"{'#':>4}  {'scenario':<14}{'seed':>6}{'steps':>7}  {'outcome':<8}{'travel (s)':>11}{'encircled':>10}"
@@ -80,13 +85,21 @@ def _notes(log: str, reader: EpisodeLogReader) -> list[str]:
 @episode_option
 @click.option("--verify", "check", is_flag=True, help="Re-simulate and compare every recorded state bit for bit.")
 @json_option
-def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
+@live_option("Stream the episodes (every one, or --episode K) at their log times, once a client subscribes to /world,")
+@click.option(
+    "--rate", type=FloatRange(MIN_RATE, MAX_RATE), default=None, metavar="X",
+    help="With --live: how many times real time the log plays (0.5 s steps) [default: 1, real time].",
+)
+def replay(log: str, episode: int | None, check: bool, as_json: bool, live: tuple[str, int] | None,
+           rate: float | None) -> None:
     """List the episodes of an MCAP episode log (from `terl-rt eval --log`), show the
     events of one (--episode K; under --shield, how often it overrode each pursuer), or
     verify episodes by re-simulating them (--verify:
     every episode, or K). Exit status 1 when a verification finds a mismatch. A batched
     run holds the episodes waiting for their turn in LOG.held/, one log each, and a killed
     one leaves them there; the notes under the list name them, and a run still writing LOG.
+    --live serves the log to Foxglove as a run's --live serves it, paced by its log times
+    (--rate X plays it X times faster), and ends with the last step.
 
     \b
     Examples:
@@ -94,9 +107,23 @@ def replay(log: str, episode: int | None, check: bool, as_json: bool) -> None:
       terl-rt replay run.mcap --episode 3            # its captures, collisions and end
       terl-rt replay run.mcap --verify               # re-simulate every episode bit for bit
       terl-rt replay run.mcap --episode 3 --json
+      terl-rt replay run.mcap --live --rate 4        # to Foxglove at ws://127.0.0.1:8765, 4x real time
     """
+    if rate is not None and live is None:
+        raise BadInput("--rate sets the pace of --live; pass --live with it")
+    if live is not None and (check or as_json):
+        raise BadInput("--live streams the log; pass --verify and --json without it")
     reader = EpisodeLogReader(log)
     chosen = list(range(len(reader.episodes))) if episode is None else [reader.episode(episode).number]
+    if live is not None:
+        with open_live(live) as sink:
+            click.echo("waiting for a client to subscribe to /world", err=True)
+            sink.wait_watched()
+            sent = stream_log(reader, sink, chosen, 1.0 if rate is None else rate)
+        click.echo(f"streamed {sent} steps of {len(chosen)} episode(s) of {log}")
+        for note in _notes(log, reader):
+            click.echo(f"note: {note}", err=True)
+        return
     if check:
         reports = [verify(log, number) for number in chosen]
         if as_json:

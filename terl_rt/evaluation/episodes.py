@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 
 from terl_rt.evaluation.runs import Backend, EpisodeSpec, run_episodes
 from terl_rt.evaluation.stats import episode_intervals, travel_times
-from terl_rt.logs.writer import EpisodeLogWriter
+from terl_rt.logs.sink import StepSink
 from terl_rt.policy.protocol import Policy
 from terl_rt.safety.acting import Acting
 from terl_rt.sim.evader import DEFAULT_EVADER
@@ -165,10 +165,10 @@ def episode_outcome(metrics: EpisodeMetrics, max_steps: int) -> str:
 
 def run_scenario(
     policy: Policy, scenario: Scenario, episodes: int, seed: int, backend: Backend,
-    log: EpisodeLogWriter | None = None, progress: Progress | None = None, acting: Acting = Acting(),
+    log: StepSink | None = None, progress: Progress | None = None, acting: Acting = Acting(),
 ) -> ScenarioResult:
     """`episodes` episodes of `scenario` (its step limit in force) on `backend`, episode k
-    with seed + k, acting by `acting`; every step written to `log` and every episode reported
+    with seed + k, acting by `acting`; every step written to `log` (a sink) and every episode reported
     to `progress` in episode order as it finishes. Opens nothing: the caller owns the policy,
     backend and log."""
     specs = [EpisodeSpec(0, scenario, seed + k, k, acting) for k in range(episodes)]

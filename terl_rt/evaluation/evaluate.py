@@ -1,7 +1,8 @@
 """`terl_rt.evaluate`: the one call that evaluates a policy. It opens what the evaluation
 needs (the policy from a path or a shipped policy's name, the backend, the episode log),
 runs each scenario's episodes (`episodes.run_scenario`: episode k with seed + k, batched,
-the same results on every backend) and closes what it opened.
+the same results on every backend), writing every step to the sinks of `log`
+(terl_rt.logs.sink), and closes what it opened.
 
     import terl_rt
     evaluation = terl_rt.evaluate("terl", "small-15", episodes=20, seed=0)
@@ -22,6 +23,8 @@ from terl_rt.evaluation.episodes import Progress, ScenarioResult, run_scenario
 from terl_rt.evaluation.play import BATCH_ENVS
 from terl_rt.evaluation.pool import LocalBackend
 from terl_rt.evaluation.runs import Backend
+from terl_rt.logs.held import episode_log
+from terl_rt.logs.sink import StepSink, StepSinks
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.policy.onnx_policy import OnnxPolicy, policy_info
 from terl_rt.policy.protocol import Policy, as_policy
@@ -32,6 +35,8 @@ from terl_rt.safety.shield import Shield
 from terl_rt.sim.observation import Observation
 from terl_rt.sim.scenario import Scenario
 
+LogTarget = str | os.PathLike | StepSink
+"""Where `evaluate` writes every step: an MCAP file's path (the log opened there) or a sink."""
 ScenarioProgress = Callable[[Scenario, int], AbstractContextManager[Progress]]
 """(scenario, episodes) -> a context around that scenario's evaluation, whose value is
 called after each of its episodes with the episode's index and metrics (a progress bar)."""
@@ -50,7 +55,7 @@ class Evaluation:
     results: tuple[ScenarioResult, ...]
     """per scenario, in the order given: every episode's metrics and their aggregates."""
     log_path: Path | None
-    """the episode log written, None without one."""
+    """the MCAP episode log written (given as a path or an EpisodeLogWriter), None without one."""
     logged_episodes: int
     """episodes in the log (0 without one)."""
 
@@ -69,7 +74,7 @@ def evaluate(
     seed: int = 0,
     *,
     max_steps: int | None = None,
-    log: str | os.PathLike | EpisodeLogWriter | None = None,
+    log: LogTarget | Sequence[LogTarget] | None = None,
     replace_log: bool = True,
     workers: int | None = None,
     backend: Backend | str = "local",
@@ -87,9 +92,11 @@ def evaluate(
     training's TorchPolicy) or a function of observation rows [R] to R action indices
     (`CallablePolicy`). scenario: a Scenario or a preset's name, or several. max_steps:
     every scenario's step limit (decision steps of 0.5 s) instead of its own.
-    log: an MCAP file to write every step to (published at the first step; an existing
-    file is replaced only with `replace_log`, else FileExistsError), or an open
-    EpisodeLogWriter to append to (the caller closes it).
+    log: where every step goes, in episode order (terl_rt.logs.sink): an MCAP file's path
+    (published at the first step; an existing file is replaced only with `replace_log`, else
+    FileExistsError), or a StepSink the caller opened and closes (an EpisodeLogWriter to
+    append to, a terl_rt.logs.live.LiveSink, one of your own), or a list of them, each
+    getting every step (one MCAP log at most).
     backend: "local" or "ray" (`open_backend` with `workers`, `address`, `threads` and
     `envs`, closed at the end), or an open Backend (the caller closes it; then workers and
     envs are the backend's). threads: onnxruntime intra-op threads of a policy opened here
@@ -107,6 +114,7 @@ def evaluate(
     if not isinstance(backend, str) and (workers not in (None, 1) or envs != BATCH_ENVS):
         raise ValueError("pass workers and envs to the backend, not to evaluate as well")
     scenarios = [_scenario(each, max_steps) for each in _as_list(scenario)]
+    targets = _log_targets(log)
     if policy is None or isinstance(policy, (str, os.PathLike)):
         policy = open_policy(policy, threads=threads)
     policy = as_policy(policy)
@@ -117,14 +125,19 @@ def evaluate(
     with ExitStack() as opened:
         if isinstance(backend, str):
             backend = opened.enter_context(open_backend(backend, workers, address, threads, envs))
-        writer = log if log is None or isinstance(log, EpisodeLogWriter) else opened.enter_context(
-            EpisodeLogWriter(Path(log), policy_info(policy), staged=True, replace=replace_log))
+        sinks = [
+            opened.enter_context(EpisodeLogWriter(Path(target), policy_info(policy), staged=True, replace=replace_log))
+            if isinstance(target, (str, os.PathLike)) else target
+            for target in targets
+        ]
+        sink = None if not sinks else sinks[0] if len(sinks) == 1 else StepSinks(sinks)
+        written = episode_log(sink)
         results = []
         for each in scenarios:
             with progress(each, episodes) if progress is not None else nullcontext(None) as on_episode:
-                results.append(run_scenario(policy, each, episodes, seed, backend, writer, on_episode, acting))
-    return Evaluation(policy_info(policy), acting, seed, tuple(results), None if writer is None else writer.path,
-                      0 if writer is None else writer.episodes_written)
+                results.append(run_scenario(policy, each, episodes, seed, backend, sink, on_episode, acting))
+    return Evaluation(policy_info(policy), acting, seed, tuple(results), None if written is None else written.path,
+                      0 if written is None else written.episodes_written)
 
 
 def evaluate_policy(
@@ -134,7 +147,7 @@ def evaluate_policy(
     seed: int,
     max_steps: int | None = None,
     workers: int = 1,
-    log_path: str | os.PathLike | EpisodeLogWriter | None = None,
+    log_path: LogTarget | Sequence[LogTarget] | None = None,
     progress: Progress | None = None,
     threads: int | None = None,
     backend: Backend | None = None,
@@ -152,6 +165,19 @@ def _in_process(backend: Backend | str, workers: int | None) -> bool:
     if isinstance(backend, str):
         return backend == "local" and workers in (None, 1)
     return isinstance(backend, LocalBackend) and backend.workers == 1
+
+
+def _log_targets(log: LogTarget | Sequence[LogTarget] | None) -> list[LogTarget]:
+    """The targets of `evaluate`'s `log` as a list (None: none); TypeError for anything but
+    paths and sinks."""
+    if log is None:
+        return []
+    targets = [log] if isinstance(log, (str, os.PathLike, StepSink)) or not isinstance(log, Sequence) else list(log)
+    for target in targets:
+        if not isinstance(target, (str, os.PathLike, StepSink)):
+            raise TypeError(f"log takes an MCAP file's path, a StepSink (terl_rt.logs.sink) or a list of them, "
+                            f"got {type(target).__name__}")
+    return targets
 
 
 def _as_list(scenario: Scenario | str | Sequence[Scenario | str]) -> list[Scenario | str]:

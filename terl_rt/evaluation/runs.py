@@ -5,11 +5,13 @@ A backend runs the specs in batches (`batches`), the episodes of a batch togethe
 World (terl_rt.evaluation.play.batch_steps), wherever it runs them (this process, worker
 processes, Ray tasks), and hands each message to the run as it arrives: ("step", i, StepRecord) for every
 step of spec i when the run is logged, then ("end", i, EpisodeMetrics). `run_episodes`
-puts them in spec order: a log keeps each episode's records together, so the lowest
-unfinished episode is written as its steps arrive and later episodes' steps wait in
-memory until their turn, each also written step by step to a side log of its own beside
-the log (terl_rt.logs.held), deleted once its steps are in the log: a killed run keeps
-every step taken. Episodes are reported in spec order. Interrupted or failed, the run
+puts them in spec order: the run's log (a sink of steps, terl_rt.logs.sink: the MCAP log,
+a live view, both, a user's own) takes each episode whole, so the lowest unfinished episode
+is written as its steps arrive and later episodes' steps wait in this process's memory until
+their turn, each also written step by step to a side log of its own beside the MCAP log
+(terl_rt.logs.held), deleted once its steps are in the log: a killed run keeps every step
+taken. So every sink sees the steps of workers and Ray tasks as it sees those of one process,
+in episode order. Episodes are reported in spec order. Interrupted or failed, the run
 writes what waits before the error goes on (the episodes that did not end stay unended
 in the log). Every episode is the same, bit for bit, in any batch, so the
 results and the log never depend on the backend or on how many workers it has.
@@ -26,8 +28,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from terl_rt.logs.format import StepRecord
-from terl_rt.logs.held import HeldEpisodes
-from terl_rt.logs.writer import EpisodeLogWriter, sigint_deferred
+from terl_rt.logs.held import HeldEpisodes, episode_log
+from terl_rt.logs.sink import StepSink
+from terl_rt.logs.writer import sigint_deferred
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from terl_rt.safety.acting import Acting
 from terl_rt.sim.metrics import EpisodeMetrics
@@ -105,11 +108,11 @@ def run_episodes(
     policies: Sequence[OnnxPolicy],
     specs: Sequence[EpisodeSpec],
     backend: Backend,
-    log: EpisodeLogWriter | None,
+    log: StepSink | None,
     finished: Finished,
 ) -> None:
-    """Run `specs` on `backend`, write every step to `log` (when given) and report each
-    episode to `finished`, all in spec order (see the module's docstring)."""
+    """Run `specs` on `backend`, write every step to `log` (a sink, terl_rt.logs.sink; when
+    given) and report each episode to `finished`, all in spec order (see the module's docstring)."""
     order = InOrderLog(specs, log, finished)
     try:
         backend.run(policies, specs, log is not None, order.receive)
@@ -174,7 +177,7 @@ class InOrderLog:
     moment stops between two of them, so what waits is written once, and nothing twice.
     """
 
-    def __init__(self, specs: Sequence[EpisodeSpec], log: EpisodeLogWriter | None, finished: Finished):
+    def __init__(self, specs: Sequence[EpisodeSpec], log: StepSink | None, finished: Finished):
         self.specs, self.log, self.finished = specs, log, finished
         self.current = 0
         """the spec being written (every lower one is done)."""
@@ -184,7 +187,9 @@ class InOrderLog:
         """spec -> its steps not yet in the log, oldest first."""
         self.ended: dict[int, EpisodeMetrics] = {}
         """spec -> its metrics, for later specs that ended before their turn."""
-        self.held = None if log is None else HeldEpisodes(log.path, log.policy_info)
+        mcap = episode_log(log)
+        self.held = None if mcap is None else HeldEpisodes(mcap.path, mcap.policy_info)
+        """the side logs of the waiting episodes, beside the MCAP log among the sinks (if one is)."""
 
     def receive(self, kind: str, number: int, payload) -> None:
         if number != self.current:
@@ -260,7 +265,8 @@ class InOrderLog:
     def _write(self, record: StepRecord) -> None:
         if self.log is None:
             return
-        self.held.clear_earlier()
+        if self.held is not None:
+            self.held.clear_earlier()
         if not self.begun:
             self._begin()
         self.log.write_step(record)

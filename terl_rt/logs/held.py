@@ -13,6 +13,9 @@ the log: a log of one episode (`terl-rt replay` reads and verifies it), cut off 
 run stopped unless the episode had ended. It leaves out /world, Foxglove's 3-D scene,
 which takes most of a step's writing time (a logged batched run of 10 small-15 episodes
 took about 1.35x the CPU time with it, 1.1x without; see `EpisodeLogWriter`'s `scenes`).
+
+Only the MCAP log among a run's sinks (terl_rt.logs.sink) has side logs: for any other sink
+(a live view, a user's own) the waiting episodes wait in memory alone.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from terl_rt.logs.format import StepRecord
+from terl_rt.logs.sink import StepSink, sinks_in
 from terl_rt.logs.writer import EpisodeLogWriter
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
@@ -40,6 +44,16 @@ def held_logs(log: str | Path) -> list[Path]:
     """The side logs a killed run left beside `log`, in episode order (none: [])."""
     folder = held_folder(log)
     return sorted(folder.glob("episode-*.mcap")) if folder.is_dir() else []
+
+
+def episode_log(sink: StepSink | None) -> EpisodeLogWriter | None:
+    """The MCAP log among the sinks of a run (`terl_rt.logs.sink.sinks_in`), the one its
+    waiting episodes are held beside; None when no sink is one. ValueError for several: a run
+    writes one log."""
+    logs = [each for each in sinks_in(sink) if isinstance(each, EpisodeLogWriter)]
+    if len(logs) > 1:
+        raise ValueError(f"a run writes one episode log, got {len(logs)}: " + ", ".join(str(log.path) for log in logs))
+    return logs[0] if logs else None
 
 
 class HeldEpisodes:

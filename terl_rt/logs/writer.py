@@ -12,11 +12,9 @@ import signal
 import threading
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from terl_rt import __version__
@@ -28,23 +26,13 @@ from terl_rt.logs.format import (
     META_EPISODE_END,
     META_LOG,
     SCHEMAS,
-    TOPIC_ACTIONS,
-    TOPIC_EVENTS,
-    TOPIC_REWARDS,
-    TOPIC_STATE,
-    TOPIC_TARGET_WEIGHTS,
-    TOPIC_WORLD,
     StepRecord,
-    encode,
 )
-from terl_rt.logs.foxglove import entity_ids, scene_protobuf, scene_update
+from terl_rt.logs.steps import OpenEpisode
 from terl_rt.sim.metrics import EpisodeMetrics
 from terl_rt.sim.scenario import Scenario
-from terl_rt.sim.state import LOGGED_FIELDS
 from terl_rt.sim.world import WORLD_VERSION
 
-_GAP_NS = 1_000_000_000
-"""Log time left between the last step of an episode and the next episode's start."""
 _NO_CHUNK_LIMIT = 1 << 40
 """Chunk size the writer never reaches: chunks end only where a step ends."""
 
@@ -68,47 +56,6 @@ def sigint_deferred() -> Iterator[None]:
                 previous(signal.SIGINT, None)
             else:
                 raise KeyboardInterrupt
-
-
-@dataclass
-class _OpenEpisode:
-    number: int
-    scenario: Scenario
-    offset_ns: int
-    step_ns: int
-    last_ns: int
-    scene_ids: list[str] | None = None
-    """entity ids of the last /world scene written (None before the first)."""
-
-
-def _events(record: StepRecord) -> list[dict]:
-    info = record.info
-    events: list[dict] = []
-    for j in np.flatnonzero(info.captured).tolist():
-        events.append({"type": "capture", "evader": j, "pursuers": np.flatnonzero(info.pursuer_target == j).tolist()})
-    for i in np.flatnonzero(info.collided).tolist():
-        events.append({"type": "collision", "pursuer": i})
-    if info.terminated or info.truncated:
-        success = not bool(record.state["evader_active"].any())
-        events.append({
-            "type": "episode_end", "success": success,
-            "terminated": info.terminated, "truncated": info.truncated,
-        })
-    return events
-
-
-def _shielded(record: StepRecord) -> list[int]:
-    """The pursuers whose action the shield overrode in the step (none at step 0 or unshielded)."""
-    if record.overridden is None:
-        return []
-    return np.asarray(record.decided)[np.asarray(record.overridden, bool)].tolist()
-
-
-def _state_payload(number: int, state: Mapping[str, np.ndarray]) -> dict:
-    payload: dict[str, Any] = {"episode": number}
-    for f in LOGGED_FIELDS:
-        payload[f.key] = np.asarray(state[f.key]).tolist()
-    return payload
 
 
 class EpisodeLogWriter:
@@ -198,9 +145,7 @@ class EpisodeLogWriter:
             raise RuntimeError(f"begin_episode: episode {self._episode.number} has not ended")
         number = self._episodes
         self._episodes += 1
-        params = scenario.params
-        step_ns = int(round(params.dt * params.substeps * 1e9))
-        self._episode = _OpenEpisode(number, scenario, self._next_offset_ns, step_ns, self._next_offset_ns)
+        self._episode = OpenEpisode(number, scenario, self._next_offset_ns)
         self._mcap.add_metadata(META_EPISODE, {
             "episode": str(number),
             "index": str(int(index)),
@@ -218,68 +163,23 @@ class EpisodeLogWriter:
         episode = self._episode
         if episode is None:
             raise RuntimeError("write_step: call begin_episode first")
-        time_ns = episode.offset_ns + record.step * episode.step_ns
-        episode.last_ns = time_ns
-        head = {"episode": episode.number, "step": record.step}
-        state = record.state
-        messages = []
-        if self._scenes:
-            params = episode.scenario.params
-            status = (
-                f"{episode.scenario.label}  episode {episode.number}  step {record.step}  "
-                f"t={record.step * episode.step_ns / 1e9:g} s  "
-                f"encircled {int((~state['evader_active']).sum())}/{len(state['evader_active'])}  "
-                f"collided {int((~state['pursuer_active']).sum())}/{len(state['pursuer_active'])}"
-            )
-            scene = scene_update(
-                state, episode.scenario.arena, time_ns, params.robot_radius, params.vortex_core_radius, status,
-                previous_ids=None if record.step == 0 else episode.scene_ids, shielded=_shielded(record),
-            )
-            messages.append((TOPIC_WORLD, scene))
-        info = record.info
-        if info is not None:
-            actions = {
-                **head,
-                "pursuer": np.asarray(record.pursuer_actions).tolist(),
-                "decided": np.asarray(record.decided).tolist(),
-                "evader": info.evader_actions.tolist(),
-            }
-            if record.overridden is not None:
-                actions["shield_overrode"] = np.asarray(record.overridden, bool).tolist()
-            messages.append((TOPIC_ACTIONS, actions))
-            if record.target_weights is not None:
-                messages.append((TOPIC_TARGET_WEIGHTS, {
-                    **head,
-                    "pursuer": np.asarray(record.decided).tolist(),
-                    "weights": np.asarray(record.target_weights).tolist(),
-                }))
-            messages.append((TOPIC_REWARDS, {
-                **head,
-                "total": info.reward.tolist(),
-                "terms": {name: values.tolist() for name, values in info.reward_terms.items()},
-            }))
-            events = _events(record)
-            if events:
-                messages.append((TOPIC_EVENTS, {**head, "events": events}))
-        # /state last: its presence marks the step as complete for readers of other tools.
-        messages.append((TOPIC_STATE, _state_payload(episode.number, state)))
-        encoded = [(topic, scene_protobuf(payload) if topic == TOPIC_WORLD else encode(payload)) for topic, payload in messages]
+        step = episode.messages(record, self._scenes)
+        episode.last_ns = step.time_ns
 
         # From the first message to the flush the step is half in the chunk buffer: Ctrl-C
         # waits until the step is on disk and counted (the log published at its first
         # step), and any other interruption keeps close() from writing the half step out.
         with sigint_deferred():
             self._step_pending = True
-            for topic, data in encoded:
+            for topic, data in step.messages:
                 self._mcap.add_message(
-                    channel_id=self._channels[topic], log_time=time_ns, publish_time=time_ns,
+                    channel_id=self._channels[topic], log_time=step.time_ns, publish_time=step.time_ns,
                     data=data, sequence=self._sequence[topic],
                 )
                 self._sequence[topic] += 1
             self._mcap.flush()
             self._step_pending = False
-            if self._scenes:
-                episode.scene_ids = entity_ids(scene)
+            episode.scene_ids = step.scene_ids
             self.steps_written += 1
             if self.staging_path is not None:
                 publish(self.staging_path, self.path, self._replace)
@@ -297,7 +197,7 @@ class EpisodeLogWriter:
             "metrics": json.dumps(metrics.to_dict()),
         })
         self._mcap.flush()
-        self._next_offset_ns = episode.last_ns + _GAP_NS
+        self._next_offset_ns = episode.next_offset_ns
         self._episode = None
 
     def abandon_episode(self) -> None:
@@ -307,7 +207,7 @@ class EpisodeLogWriter:
         episode = self._episode
         if episode is None:
             raise RuntimeError("abandon_episode: no episode is open")
-        self._next_offset_ns = episode.last_ns + _GAP_NS
+        self._next_offset_ns = episode.next_offset_ns
         self._episode = None
 
     def close(self) -> None:
