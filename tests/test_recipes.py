@@ -3,6 +3,7 @@ resuming a recipe cut off where it stopped."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import re
@@ -258,6 +259,7 @@ def test_a_fine_tune_continues_a_checkpoint_a_snapshot_or_a_policy_at_its_step(t
     # the start's network (TINY's H = 16, L = 1, h = 2), not the recipe's defaults (H = 64)
     network = read_config(segment_folder(out, 2, recipe.segments[1])).network
     assert (network.model, network.hidden, network.layers, network.heads) == ("terl", 16, 1, 2)
+    assert read_config(segment_folder(out, 2, recipe.segments[1])).data.reward_scale == 1.0  # the start's, TINY's
     assert (out / "tiny.onnx").is_file()
     # run again: finished, the same start found in place
     assert main(["run", str(FINE_TUNE), "--start", str(tiny_start[kind]), "--out", str(out), "--quiet"]) == 0
@@ -305,7 +307,10 @@ def test_the_default_recipe_is_the_paper_curriculum_then_the_scale_fine_tune():
     paper = load_recipe(ROOT / "recipes" / "terl-paper.toml")
     fine_tune = load_recipe(ROOT / "recipes" / "scale-fine-tune.toml")
     assert default.segments[0] == paper.segments[0]
-    assert default.segments[1:] == fine_tune.segments  # it ends at 200 k, where the fine-tune's steps count from
+    # it ends at 200 k, where the fine-tune's steps count from, and its rewards at 1/20 carry
+    assert paper.segments[0].config.data.reward_scale == 0.05
+    assert default.segments[1:] == tuple(
+        dataclasses.replace(segment, config=segment.config.replace(reward_scale=0.05)) for segment in fine_tune.segments)
     assert (default.from_step, default.ships) == (None, "exported/terl.onnx")
     extended = load_recipe(ROOT / "recipes" / "terl-default.toml")
     assert extended.segments == default.segments
@@ -369,8 +374,8 @@ def test_a_bad_chain_is_refused_naming_the_link(tmp_path, chain, message):
         load_recipe(tmp_path / "chain.toml")
 
 
-def test_a_chain_shifts_its_later_links_to_where_the_first_ends(tmp_path):
-    (tmp_path / "base.toml").write_text(TINY.read_text())
+def test_a_chain_shifts_its_later_links_to_where_the_first_ends_carrying_its_network_and_reward_scale(tmp_path):
+    (tmp_path / "base.toml").write_text(TINY.read_text().replace("learning_starts = 40", "learning_starts = 40\nreward_scale = 0.05"))
     shutil.copyfile(FINE_TUNE, tmp_path / "fine.toml")
     (tmp_path / "fine.toml").write_text(FINE_TUNE.read_text().replace("from_step = 160", "from_step = 100"))
     (tmp_path / "chain.toml").write_text('ships = "exported/x.onnx"\n[[chain]]\nrecipe = "base.toml"\nsegments = 1\n'
@@ -380,6 +385,7 @@ def test_a_chain_shifts_its_later_links_to_where_the_first_ends(tmp_path):
         ("curriculum", 160), ("small", 260), ("mix", 300)]
     assert recipe.segments[2].config.learner.decay_start == 260
     assert {s.config.network.hidden for s in recipe.segments} == {16}  # the first link's network
+    assert {s.config.data.reward_scale for s in recipe.segments} == {0.05}  # and the scale its values are in
 
 
 def test_a_grid_of_a_recipe_with_a_start_field_ships_cards_that_name_each_seeds_start(tmp_path, tiny_start):

@@ -26,7 +26,8 @@ A recipe that continues a start names the step its steps are counted from, `from
 first segment continues the start (`python -m training run RECIPE --start START`: a checkpoint,
 a snapshot or an exported policy, training.start), and a start at another step shifts every
 step of the recipe (the segments' ends, `decay_start`, the curriculum's `curriculum_steps`) by
-the difference. The start's network (body and sizes) replaces the recipe's in every segment:
+the difference. The start's network (body and sizes) and the scale of the rewards its values
+were learnt in (`reward_scale`) replace the recipe's in every segment (CARRIED_FIELDS):
 
     from_step = 200_000             # recipes/scale-fine-tune.toml: the default's fine-tune at scale
     [[segment]]
@@ -80,7 +81,7 @@ from pathlib import Path
 from typing import Any
 
 from training.checkpoint import STATE_FILE, export_checkpoint, read_config, read_counters
-from training.config import SECTIONS, Config, ConfigError, NetworkConfig, read_fields
+from training.config import SECTIONS, Config, ConfigError, read_fields
 from training.run_lock import holding_run_folder
 from training.start import START_FOLDER, StartError, place_start, seed_start
 from training.train import BEST_FOLDER, SeedRun
@@ -95,8 +96,10 @@ CHAIN_KEYS = ("ships", "ships_from", "chain")
 """The top-level keys of a recipe that chains others."""
 LINK_KEYS = ("recipe", "segments")
 """The keys of one [[chain]] entry."""
-NETWORK_SHAPE = ("model", "hidden", "layers", "heads")
-"""The network fields a start (or a chain's first recipe) gives every later segment."""
+CARRIED_FIELDS = ("model", "hidden", "layers", "heads", "reward_scale")
+"""What a start (or a chain's first recipe) gives every segment that continues it: the network's
+body and sizes, and the scale of the rewards its values were learnt in (docs/training.md, the
+fine-tune at scale: teaching a start's values 20 times its rewards unlearnt it)."""
 EXTENSION_KEYS = ("extends", "ships", "ships_from", "start", *SECTIONS)
 """The top-level keys of a recipe that extends another."""
 
@@ -154,11 +157,11 @@ class Recipe:
             raise RecipeError(f"{self.path}: 'start' belongs to a recipe that continues one (with from_step)")
         return self
 
-    def with_network(self, network: NetworkConfig) -> Recipe:
-        """The recipe with `network`'s body and sizes (NETWORK_SHAPE) in every segment."""
-        shape = {name: getattr(network, name) for name in NETWORK_SHAPE}
+    def carrying(self, start: Config) -> Recipe:
+        """The recipe with the start's CARRIED_FIELDS (its network and reward scale) in every segment."""
+        carried = carried_fields(start)
         return dataclasses.replace(self, segments=tuple(
-            dataclasses.replace(segment, config=segment.config.replace(**shape)) for segment in self.segments
+            dataclasses.replace(segment, config=segment.config.replace(**carried)) for segment in self.segments
         ))
 
     @property
@@ -225,6 +228,11 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     return Recipe(path, data["ships"], ships_from, tuple(segments), from_step, start)._checked_start()
 
 
+def carried_fields(start: Config) -> dict[str, Any]:
+    """The CARRIED_FIELDS of a start's config, by name."""
+    return {name: start.value(name) for name in CARRIED_FIELDS}
+
+
 def _shift_config(config: Config, delta: int) -> Config:
     """`config` with its steps moved by `delta`: the end, the step size's decay start (when it
     decays) and the curriculum's length (when it walks one)."""
@@ -239,7 +247,7 @@ def _shift_config(config: Config, delta: int) -> Config:
 
 def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Recipe:
     """The recipe `data` of file `path` chains: each link's segments (its first `segments`), every
-    link after the first continuing where the one before ends, with the first link's network."""
+    link after the first continuing where the one before ends, with its CARRIED_FIELDS."""
     links = data["chain"]
     if not isinstance(links, list) or not links:
         raise RecipeError(f"{path}: 'chain' must be one or more [[chain]] tables")
@@ -266,7 +274,7 @@ def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Rec
         else:
             if part.from_step is None:
                 raise RecipeError(f"{where}: {link_path} starts from nothing (no from_step); only the first link may")
-            part = part.shifted(segments[-1].config.schedule.total_steps).with_network(first.segments[0].config.network)
+            part = part.shifted(segments[-1].config.schedule.total_steps).carrying(segments[-1].config)
         segments.extend(part.segments[:count])
     names = [segment.name for segment in segments]
     if len(set(names)) != len(names):
@@ -354,7 +362,7 @@ def continuing(recipe: Recipe, out: Path) -> Recipe:
     start = Path(out) / START_FOLDER
     if recipe.from_step is None or not (start / STATE_FILE).is_file():
         return recipe
-    return recipe.shifted(read_counters(start).env_step).with_network(read_config(start).network)
+    return recipe.shifted(read_counters(start).env_step).carrying(read_config(start))
 
 
 def recipe_finished(recipe: Recipe, out: Path) -> bool:
@@ -420,7 +428,7 @@ def run_recipe(
     `start` is what the first segment of a recipe with from_step continues (default: the
     recipe's own `start`; a recipe without from_step takes none): a checkpoint, snapshot or .onnx
     policy (training.start), "{seed}" in it replaced by each seed's number. It is laid down in
-    each seed's OUT/0-start/ and the recipe shifted to its step, with its network.
+    each seed's OUT/0-start/ and the recipe shifted to its step, with its CARRIED_FIELDS.
     """
     out = Path(out)
     folders = seed_folders(out, seeds, seed, recipe)
@@ -460,9 +468,10 @@ def _placed_start(recipe: Recipe, start: str, folders: dict[int, Path]) -> Recip
     if len(set(steps.values())) > 1:
         raise RecipeError(f"seeds trained together start from one step; their starts are at "
                           f"{', '.join(f'seed {n}: {s:,}' for n, s in steps.items())}: run them apart (--seed S)")
-    shapes = {number: read_config(folders[number] / START_FOLDER).network for number in folders}
-    if len({tuple(getattr(network, name) for name in NETWORK_SHAPE) for network in shapes.values()}) > 1:
-        raise RecipeError(f"seeds trained together share one network; their starts have {shapes}: run them apart")
+    carried = {number: carried_fields(read_config(folders[number] / START_FOLDER)) for number in folders}
+    if len({tuple(fields.values()) for fields in carried.values()}) > 1:
+        raise RecipeError(f"seeds trained together share one network and reward scale; their starts have {carried}: "
+                          "run them apart")
     return continuing(recipe, next(iter(folders.values())))
 
 
