@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from terl_rt.paper.numbers import PAPER_METHODS
+from terl_rt.policy import models
 from terl_rt.sim.evader import DEFAULT_EVADER, UnknownEvader, evader_kind
 from terl_rt.sim.reward import REWARD_VARIANTS
 from terl_rt.sim.scenario import CURRICULUM_STARTS, PRESETS
@@ -36,10 +36,9 @@ class ConfigError(ValueError):
     """A configuration that is malformed; the message names the field (or file)."""
 
 
-MODELS: tuple[str, ...] = tuple(PAPER_METHODS)
-"""The network bodies `NetworkConfig.model` may name, each a class of training.networks'
-registry (`network_classes`, which imports torch): the paper's methods, as the runtime names
-their models, so that a command line can offer them without importing torch."""
+MODELS: tuple[str, ...] = tuple(models.MODELS)
+"""The network bodies `NetworkConfig.model` may name: the runtime's registry
+(terl_rt.policy.models), read without importing torch; training.networks maps each to its class."""
 
 
 @dataclass(frozen=True)
@@ -315,11 +314,9 @@ class Config:
     def for_model(model: str) -> Config:
         """The defaults with another network body: `model`, its layers and heads 0 when it has no
         transformer (the comparison's recipe: only the body changes)."""
-        from training.networks import network_classes
-
-        if model not in network_classes():
-            raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(network_classes())}")
-        if network_classes()[model].has_transformer:
+        if model not in models.MODELS:
+            raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(MODELS)}")
+        if models.MODELS[model].transformer:
             return Config.of(model=model)
         return Config.of(model=model, layers=0, heads=0)
 
@@ -427,14 +424,9 @@ def _has_type(value: Any, expected: Any) -> bool:
 
 
 def _validate(config: Config) -> None:
-    # Imported here: the registry pulls in torch, which `Config` users may not need yet. It is
-    # read, never built: no network is made, no random stream moves.
-    from training.networks import network_classes
-
     network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
-    models = sorted(MODELS)
-    if network.model not in models:
-        raise ConfigError(f"model: unknown network '{network.model}'; expected one of {models}")
+    if network.model not in models.MODELS:
+        raise ConfigError(f"model: unknown network '{network.model}'; expected one of {sorted(MODELS)}")
     if data.reward not in REWARD_VARIANTS:
         raise ConfigError(f"reward: unknown variant '{data.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
     if run.snapshot_preset not in PRESETS:
@@ -463,7 +455,7 @@ def _validate(config: Config) -> None:
                  "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
         if config.value(name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {config.value(name)}")
-    if network_classes()[network.model].has_transformer:
+    if models.MODELS[network.model].transformer:
         for name in ("layers", "heads"):
             if config.value(name) < 1:
                 raise ConfigError(f"{name}: model '{network.model}' has a transformer, needs >= 1, got {config.value(name)}")

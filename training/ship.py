@@ -15,7 +15,8 @@ from typing import Any
 
 from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_METHOD, META_SEED
-from training.card import PAPER_NAMES, model_lines, recipe_line, settings, snapshot_row, weights_line
+from terl_rt.policy.models import model_title
+from training.card import model_lines, recipe_line, settings, snapshot_row, weights_line
 from training.checkpoint import Counters, export_checkpoint, network_from_config, read_config, read_counters
 from training.curves import plot_seed_curves, read_metrics
 from training.grid import Cell
@@ -74,7 +75,7 @@ def method_card(
     a row per seed (a seed not shipped says so and names its log)."""
     recipe = continuing(seeds[0][1], seeds[0][0].out)
     config = recipe.segments[-1].config
-    name = PAPER_NAMES.get(config.network.model, config.network.model)
+    name = model_title(config.network.model)
     card_folder = figure.parent
     command = (f"python -m training grid {recipe.path} --seeds {','.join(str(cell.seed) for cell, _ in seeds)} "
                f"--out {seeds[0][0].out.parent.parent} --ship {card_folder}")

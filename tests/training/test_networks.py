@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import nn
 
-from training.config import MODELS
+from terl_rt.policy.models import MODELS
 from training.export import example_inputs
 from training.networks import build_network, fixed_fractions, network_classes
 from training.networks.encoders import (
@@ -44,8 +44,10 @@ def run(model: nn.Module, inputs: dict[str, torch.Tensor]) -> tuple[torch.Tensor
         return model.policy_outputs(*(inputs[name] for name in NAMES))
 
 
-def test_the_registry_builds_every_model_a_config_may_name():
-    assert sorted(MODELS) == ALL_MODELS  # config.MODELS: the names without importing torch
+def test_each_network_class_is_registered_under_a_name_of_the_runtimes_registry():
+    assert list(network_classes()) == list(MODELS)
+    for name, cls in network_classes().items():
+        assert cls.model_name == name and cls.has_transformer == MODELS[name].transformer
 
 
 @pytest.mark.parametrize("name", ALL_MODELS)

@@ -32,7 +32,8 @@ __all__ = [
 
 
 def network_classes() -> dict[str, type[QNetwork]]:
-    """Registry: model name -> class, for `terl`, `iqn`, `dqn`, `mean`, `terl-no-re`, `terl-no-ts`."""
+    """Model name (terl_rt.policy.models) -> class, for `terl`, `iqn`, `dqn`, `mean`, `terl-no-re`,
+    `terl-no-ts`."""
     classes = (
         TERLNetwork,
         IQNBaseline,
