@@ -331,7 +331,7 @@ class ConstantQ(torch.nn.Module):
 
 
 def test_value_check_compares_q_with_the_discounted_return_that_follows():
-    from training.values import value_check
+    from training.lab.values import value_check
 
     scenario = Scenario.preset("small-11").replace(max_steps=3)
     check = value_check(ConstantQ(), tiny(gamma=0.5), scenario, episodes=1, seed=3)
@@ -351,7 +351,7 @@ def test_value_check_compares_q_with_the_discounted_return_that_follows():
 
 
 def test_an_exploring_value_check_follows_the_episode_its_random_actions_make():
-    from training.values import value_check
+    from training.lab.values import value_check
 
     scenario = Scenario.preset("small-11").replace(max_steps=5)
     greedy = value_check(ConstantQ(), tiny(), scenario, episodes=1, seed=3)

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from terl_rt.policy.models import model_title
 from training.config import Config
-from training.curves import read_metrics
+from training.lab.curves import read_metrics
 
 if TYPE_CHECKING:
     import torch
