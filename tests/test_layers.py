@@ -49,3 +49,9 @@ def test_the_layout_names_every_module_of_trainings_core_and_of_its_lab():
 
     assert modules(ROOT / "training") <= names_in_layout("training/ ", "  lab/ ")
     assert modules(ROOT / "training" / "lab") <= names_in_layout("  lab/ ", "  cli/ ")
+
+
+def test_the_replay_buffer_takes_its_input_names_from_the_contract():
+    source = (ROOT / "training" / "buffer.py").read_text()
+    assert "training.export" not in source
+    assert re.search(r"^from terl_rt\.policy\.contract import .*\bINPUT_NAMES\b", source, re.MULTILINE)

@@ -15,8 +15,8 @@ import torch
 from training.buffer import ReplayBuffer, pad_evader_slots
 from training.checkpoint import network_from_config
 from training.config import SECTION_OF, Config, ConfigError
-from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
+from terl_rt.policy.contract import INPUT_NAMES
 from training.checkpoint import read_counters
 from terl_rt.sim.reward import taught_reward
 from terl_rt.sim.rollout import Rollout
