@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from training.buffer import ReplayBuffer, pad_evader_slots
-from training.checkpoint import network_from_config
 from training.config import SECTION_OF, Config, ConfigError
 from training.losses import quantile_td_target, td_target
+from training.networks import network_from_config
 from terl_rt.policy.contract import INPUT_NAMES
 from training.checkpoint import read_counters
 from terl_rt.sim.reward import taught_reward
@@ -185,7 +185,7 @@ def test_kept_snapshots_export_and_refuse_to_resume(tmp_path):
         train(config, tmp_path / "resumed", resume=kept[0], show_progress=False)
 
 def test_dropout_of_the_transformer_layers_comes_from_the_config():
-    from training.checkpoint import network_from_config
+    from training.networks import network_from_config
 
     for p in (0.0, 0.1):
         model = network_from_config(Config.of(hidden=16, layers=1, heads=2, dropout=p).network)

@@ -14,13 +14,12 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.buffer import ReplayBuffer, trim_padding
-from training.checkpoint import network_from_config
 from training.config import Config, ConfigError
 from training.lab.throughput import PLAIN, benchmark
 from training.lab.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 from training.learner import Learner, td_losses
 from training.losses import quantile_td_target
-from training.networks import network_classes
+from training.networks import network_classes, network_from_config
 from training.train import TransitionStore, as_tensors, epsilon_greedy, greedy_actions, taught_step
 
 

@@ -7,9 +7,10 @@ import json
 import pytest
 
 from training.__main__ import main
-from training.checkpoint import CONFIG_FILE, Counters, network_from_config, save_snapshot
+from training.checkpoint import CONFIG_FILE, Counters, save_snapshot
 from training.config import Config
 from training.lab.snapshot_curves import EVALUATIONS_FILE
+from training.networks import network_from_config
 from training.train import METRICS_FILE
 
 

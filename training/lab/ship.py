@@ -16,12 +16,13 @@ from typing import Any
 from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_METHOD, META_SEED
 from terl_rt.policy.models import model_title
-from training.checkpoint import Counters, export_checkpoint, network_from_config, read_config, read_counters
+from training.checkpoint import Counters, export_checkpoint, read_config, read_counters
 from training.lab.card import model_lines, recipe_line, settings, snapshot_row, weights_line
 from training.lab.curves import plot_seed_curves, read_metrics
 from training.lab.grid import Cell
 from training.lab.recipe import Recipe, continuing, recipe_finished, segment_folder, shipped_checkpoint
 from training.lab.start import START_FOLDER, read_start
+from training.networks import network_from_config
 from training.train import METRICS_FILE
 
 
