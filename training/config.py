@@ -83,7 +83,7 @@ class LearnerConfig:
     actor_update_frequency: int = 0
     """0: the online network acts, changing with every update (the published setting). K > 0: a
     copy of it acts, refreshed every K environment steps (and at a resume), so the data come
-    from one fixed network K steps at a time (docs/training.md, "What mattered", 9). A resume
+    from one fixed network K steps at a time (docs/training-mattered.md, 9). A resume
     continues bit for bit when the run's checkpoint_frequency is a multiple of K."""
     num_quantiles: int = 8
     """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
@@ -236,7 +236,7 @@ RETIRED_FIELDS: dict[str, Any] = {
     "eval_episodes": None,
     "curriculum_shares": [2.0, 2.0, 1.0, 1.0, 1.0],
 }
-"""Knobs that no recipe uses and that did not help (docs/training.md, "Retired knobs"), with the
+"""Knobs that no recipe uses and that did not help (docs/training-mattered.md, "Retired knobs"), with the
 value that kept them out of the way: a flat config of an earlier run reads when each holds it
 (None: any value, the periodic greedy evaluation it set being replaced by snapshots)."""
 
@@ -371,7 +371,7 @@ def read_fields(data: Any, source: str = "config") -> dict[str, Any]:
             value = flat.pop(name)
             if neutral is not None and value != neutral:
                 raise ConfigError(
-                    f"{source}: '{name}' was retired (docs/training.md, \"Retired knobs\"); it reads only "
+                    f"{source}: '{name}' was retired (docs/training-mattered.md, \"Retired knobs\"); it reads only "
                     f"at {neutral!r}, got {value!r}"
                 )
     unknown = sorted(set(flat) - set(SECTION_OF))

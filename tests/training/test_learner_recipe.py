@@ -1,4 +1,4 @@
-"""The learner's recipe (docs/training.md, "What mattered", 9 and 10): updates that cost
+"""The learner's recipe (docs/training-mattered.md, 9 and 10): updates that cost
 what the batch's entities cost (trimmed padding, bf16), rewards taught on a scale where the
 loss works, survivors bootstrapped as the published trainer does, and the bar values must meet."""
 
