@@ -21,15 +21,8 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from terl_rt.policy.contract import (
-    INPUTS,
-    META_MODEL,
-    NUM_QUANTILES,
-    ContractError,
-    ContractReport,
-    TensorInfo,
-    check_model,
-)
+from terl_rt.policy.checks import ContractReport, check_model
+from terl_rt.policy.contract import INPUTS, META_MODEL, NUM_QUANTILES, ContractError, TensorInfo
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS, PURSUER_ACTIONS
 from terl_rt.sim.observation import Observation
 
