@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The prepared device-machine command (docs/training.md, "Speed"): one call of under
+# The prepared device-machine command (docs/training-speed.md): one call of under
 # 9 minutes that trains grid cells with their learners on the GPU, the seeds of a method trained
 # together in one process (SEEDS_PER_PROCESS, default 3: one batched update on the GPU serves
 # them all; rollouts on the CPU cores, one process a stack), and brings back each method's resume
@@ -23,8 +23,8 @@
 # one archive a method: $OUT/<method>.tar.gz. Unpack with `tar xzf METHOD.tar.gz -C runs/comparison`.
 # The tests marked cuda run first (pytest -m cuda; .whl carries pytest and onnx). First lent on
 # 2026-11-27: 6 cells on an H100 machine's 16 cores, 8 minutes, reached 60-116 k steps each from
-# scratch (docs/training.md, "Speed"). On an H200 on 2026-11-30 one stack's update ran 36 a
-# second for 1, 2 or 3 seeds (docs/training.md, "GPU"): stacks of three pay there. The working
+# scratch (docs/training-speed.md). On an H200 on 2026-11-30 one stack's update ran 36 a
+# second for 1, 2 or 3 seeds (docs/training-speed.md, "GPU"): stacks of three pay there. The working
 # tree travels only under 64 MiB with what is carried: move aside what the call does not read.
 set -euo pipefail
 minutes=$1

@@ -344,3 +344,16 @@ def test_an_unknown_preset_suggests_the_closest_one():
     result = invoke("eval", "--scenario", "small15")
     assert result.exit_code == 2
     assert "unknown scenario 'small15' (did you mean 'small-15'?)" in result.stderr
+
+
+def test_eval_sweep_and_report_take_one_stack_of_run_options():
+    from terl_rt.cli.options import run_options
+
+    stacked = [param.name for param in click.command("probe")(run_options(lambda **_: None)).params]
+    assert stacked == [
+        "evader", "seed", "max_steps", "workers", "backend", "address", "threads",
+        "shield", "shield_margin", "shield_horizon", "risk",
+    ]
+    for name in ("eval", "sweep", "report"):
+        names = [param.name for param in cli.commands[name].params]
+        assert names[names.index("evader") :][: len(stacked)] == stacked, name

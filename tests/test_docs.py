@@ -53,3 +53,13 @@ def test_runnable_example_runs(code, monkeypatch):
 def test_the_readme_is_a_first_page():
     lines = (ROOT / "README.md").read_text().splitlines()
     assert len(lines) <= README_LINES, f"README.md has {len(lines)} lines, at most {README_LINES}"
+
+
+def test_the_findings_are_pages_of_one_subject_none_over_300_lines():
+    index = (ROOT / "docs" / "training.md").read_text()
+    pages = sorted((ROOT / "docs").glob("training-*.md"))
+    assert len(pages) >= 4
+    for page in pages:
+        assert f"]({page.name})" in index, f"docs/training.md links no {page.name}"
+        assert len(page.read_text().splitlines()) <= 300, page.name
+    assert len(index.splitlines()) <= 300

@@ -4,6 +4,7 @@ pyproject.toml, checked as CI's `lint-imports` checks them."""
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 
 import pytest
@@ -32,3 +33,25 @@ def test_the_simulator_takes_its_observation_layout_from_no_other_part():
     for name in ("EGO_FEATURES", "TEAMMATE_FEATURES", "EVADER_FEATURES", "OBSTACLE_FEATURES", "INPUT_NAMES"):
         assert getattr(contract, name) is getattr(observation, name), name
     assert tuple(spec.name for spec in contract.INPUTS) == observation.INPUT_NAMES
+
+
+def names_in_layout(start: str, end: str) -> set[str]:
+    """The words of docs/layout.md's package tree from the line that starts with `start` to
+    the one that starts with `end`."""
+    text = (ROOT / "docs" / "layout.md").read_text()
+    begin = text.index("\n" + start) + 1
+    return set(re.findall(r"[a-z_]+", text[begin : text.index("\n" + end, begin)]))
+
+
+def test_the_layout_names_every_module_of_trainings_core_and_of_its_lab():
+    def modules(folder: Path) -> set[str]:
+        return {path.stem for path in folder.glob("*.py") if not path.stem.startswith("__")}
+
+    assert modules(ROOT / "training") <= names_in_layout("training/ ", "  lab/ ")
+    assert modules(ROOT / "training" / "lab") <= names_in_layout("  lab/ ", "  cli/ ")
+
+
+def test_the_replay_buffer_takes_its_input_names_from_the_contract():
+    source = (ROOT / "training" / "buffer.py").read_text()
+    assert "training.export" not in source
+    assert re.search(r"^from terl_rt\.policy\.contract import .*\bINPUT_NAMES\b", source, re.MULTILINE)

@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("torch")
 
-from training.recipe import load_recipe  # noqa: E402
+from training.lab.recipe import load_recipe  # noqa: E402
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "terl-paper.toml"
 

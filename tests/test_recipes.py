@@ -16,7 +16,7 @@ from terl_rt.sim.scenario import curriculum_stage
 from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import NETWORK_FIELDS
-from training.recipe import RecipeError, load_recipe, run_recipe, segment_folder
+from training.lab.recipe import RecipeError, load_recipe, run_recipe, segment_folder
 
 ROOT = Path(__file__).parents[1]
 TINY = ROOT / "tests" / "data" / "tiny-recipe.toml"
@@ -248,7 +248,7 @@ def tiny_start(tmp_path_factory):
 @pytest.mark.parametrize("kind", ["checkpoint", "snapshot", "policy"])
 def test_a_fine_tune_continues_a_checkpoint_a_snapshot_or_a_policy_at_its_step(tmp_path, tiny_start, kind):
     from training.checkpoint import read_config
-    from training.start import read_start
+    from training.lab.start import read_start
 
     out = tmp_path / "out"
     assert main(["run", str(FINE_TUNE), "--start", str(tiny_start[kind]), "--out", str(out), "--quiet"]) == 0
@@ -266,7 +266,7 @@ def test_a_fine_tune_continues_a_checkpoint_a_snapshot_or_a_policy_at_its_step(t
 
 
 def test_a_checkpoint_that_kept_its_model_alone_starts_as_a_snapshot(tmp_path, tiny_start):
-    from training.start import start_kind
+    from training.lab.start import start_kind
 
     kept = tmp_path / "best"  # scripts/keep-cells.py keeps a finished cell's best/ as model, config and state
     kept.mkdir()
@@ -280,7 +280,7 @@ def test_seeds_trained_together_each_continue_their_own_start(tmp_path, tiny_sta
         shutil.copyfile(tiny_start["policy"], tmp_path / f"start-{seed}.onnx")
     start = str(tmp_path / "start-{seed}.onnx")
     assert main(["run", str(FINE_TUNE), "--start", start, "--seeds", "1,2", "--out", str(tmp_path / "out"), "--quiet"]) == 0
-    from training.start import read_start
+    from training.lab.start import read_start
 
     assert [read_start(tmp_path / "out" / f"seed-{seed}")["source"] for seed in (1, 2)] == [
         str(tmp_path / "start-1.onnx"), str(tmp_path / "start-2.onnx")]
@@ -320,7 +320,7 @@ def test_the_authors_fine_tune_starts_from_each_seeds_last_model():
     recipe = load_recipe(ROOT / "recipes" / "terl-authors-scale.toml")
     assert recipe.segments == load_recipe(ROOT / "recipes" / "scale-fine-tune.toml").segments
     for seed in (1, 2, 3):
-        from training.start import seed_start
+        from training.lab.start import seed_start
 
         start = seed_start(recipe.start, seed)
         assert start == ROOT / "exported" / "comparison" / f"terl-authors-seed-{seed}.onnx" and start.is_file()

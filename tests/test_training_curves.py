@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from training.__main__ import main
-from training.curves import CurvesError, plot_curves, plot_seed_curves, read_metrics
+from training.lab.curves import CurvesError, plot_curves, plot_seed_curves, read_metrics
 
 pytest.importorskip("matplotlib")
 

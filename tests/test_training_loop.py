@@ -251,7 +251,7 @@ def test_every_model_takes_the_shipped_settings_with_its_own_body():
 
 
 def test_validating_a_config_builds_no_network(monkeypatch):
-    # The registry says which bodies have a transformer (QNetwork.has_transformer): no probe is built.
+    # The registry says which bodies have a transformer (terl_rt.policy.models): no probe is built.
     def refuse(self, *args, **kwargs):
         raise AssertionError(f"{type(self).__name__} built while validating a config")
 

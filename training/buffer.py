@@ -18,10 +18,9 @@ from typing import NamedTuple
 import numpy as np
 
 from terl_rt.files import atomic_output
-from terl_rt.policy.contract import EGO_FEATURES, EVADER_FEATURES, OBSTACLE_FEATURES, TEAMMATE_FEATURES
+from terl_rt.policy.contract import EGO_FEATURES, EVADER_FEATURES, INPUT_NAMES, OBSTACLE_FEATURES, TEAMMATE_FEATURES
 from terl_rt.sim.actions import NUM_PURSUER_ACTIONS
 from terl_rt.sim.observation import OBSTACLE_SLOTS, TEAMMATE_SLOTS
-from training.export import INPUT_NAMES
 
 
 class ReplayBatch(NamedTuple):

@@ -25,9 +25,9 @@ from safetensors.torch import load_file, save_file
 
 from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_TRAINED_ON, META_TRAINING_STEPS
-from training.config import Config, NetworkConfig
+from training.config import Config
 from training.export import export_onnx
-from training.networks import QNetwork, build_network
+from training.networks import QNetwork, network_from_config
 
 FORMAT_VERSION = 1
 """Version of the checkpoint layout, stored in state.json."""
@@ -64,15 +64,6 @@ class Counters:
     snapshot_evaluator: str | None = None
     """what measured the snapshots behind best_score (training.train.SNAPSHOT_EVALUATOR; None in
     checkpoints from before snapshots ran through terl_rt.evaluation)."""
-
-
-def network_from_config(network: NetworkConfig) -> QNetwork:
-    """The network a config's network part describes (fresh weights), its dropout layers at `network.dropout`."""
-    model = build_network(network.model, network.hidden, network.layers, network.heads)
-    for module in model.modules():
-        if isinstance(module, torch.nn.Dropout):
-            module.p = network.dropout
-    return model
 
 
 def rng_states(rng: np.random.Generator, torch_generator: torch.Generator) -> dict[str, Any]:

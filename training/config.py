@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from terl_rt.paper.numbers import PAPER_METHODS
+from terl_rt.policy import models
 from terl_rt.sim.evader import DEFAULT_EVADER, UnknownEvader, evader_kind
 from terl_rt.sim.reward import REWARD_VARIANTS
 from terl_rt.sim.scenario import CURRICULUM_STARTS, PRESETS
@@ -36,10 +36,9 @@ class ConfigError(ValueError):
     """A configuration that is malformed; the message names the field (or file)."""
 
 
-MODELS: tuple[str, ...] = tuple(PAPER_METHODS)
-"""The network bodies `NetworkConfig.model` may name, each a class of training.networks'
-registry (`network_classes`, which imports torch): the paper's methods, as the runtime names
-their models, so that a command line can offer them without importing torch."""
+MODELS: tuple[str, ...] = tuple(models.MODELS)
+"""The network bodies `NetworkConfig.model` may name: the runtime's registry
+(terl_rt.policy.models), read without importing torch; training.networks maps each to its class."""
 
 
 @dataclass(frozen=True)
@@ -84,7 +83,7 @@ class LearnerConfig:
     actor_update_frequency: int = 0
     """0: the online network acts, changing with every update (the published setting). K > 0: a
     copy of it acts, refreshed every K environment steps (and at a resume), so the data come
-    from one fixed network K steps at a time (docs/training.md, "What mattered", 9). A resume
+    from one fixed network K steps at a time (docs/training-mattered.md, 9). A resume
     continues bit for bit when the run's checkpoint_frequency is a multiple of K."""
     num_quantiles: int = 8
     """N: fractions sampled for the online quantiles of each transition (unused by dqn)."""
@@ -237,7 +236,7 @@ RETIRED_FIELDS: dict[str, Any] = {
     "eval_episodes": None,
     "curriculum_shares": [2.0, 2.0, 1.0, 1.0, 1.0],
 }
-"""Knobs that no recipe uses and that did not help (docs/training.md, "Retired knobs"), with the
+"""Knobs that no recipe uses and that did not help (docs/training-mattered.md, "Retired knobs"), with the
 value that kept them out of the way: a flat config of an earlier run reads when each holds it
 (None: any value, the periodic greedy evaluation it set being replaced by snapshots)."""
 
@@ -315,11 +314,9 @@ class Config:
     def for_model(model: str) -> Config:
         """The defaults with another network body: `model`, its layers and heads 0 when it has no
         transformer (the comparison's recipe: only the body changes)."""
-        from training.networks import network_classes
-
-        if model not in network_classes():
-            raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(network_classes())}")
-        if network_classes()[model].has_transformer:
+        if model not in models.MODELS:
+            raise ConfigError(f"model: unknown network '{model}'; expected one of {sorted(MODELS)}")
+        if models.MODELS[model].transformer:
             return Config.of(model=model)
         return Config.of(model=model, layers=0, heads=0)
 
@@ -374,7 +371,7 @@ def read_fields(data: Any, source: str = "config") -> dict[str, Any]:
             value = flat.pop(name)
             if neutral is not None and value != neutral:
                 raise ConfigError(
-                    f"{source}: '{name}' was retired (docs/training.md, \"Retired knobs\"); it reads only "
+                    f"{source}: '{name}' was retired (docs/training-mattered.md, \"Retired knobs\"); it reads only "
                     f"at {neutral!r}, got {value!r}"
                 )
     unknown = sorted(set(flat) - set(SECTION_OF))
@@ -427,14 +424,9 @@ def _has_type(value: Any, expected: Any) -> bool:
 
 
 def _validate(config: Config) -> None:
-    # Imported here: the registry pulls in torch, which `Config` users may not need yet. It is
-    # read, never built: no network is made, no random stream moves.
-    from training.networks import network_classes
-
     network, learner, data, schedule, run = config.network, config.learner, config.data, config.schedule, config.run
-    models = sorted(MODELS)
-    if network.model not in models:
-        raise ConfigError(f"model: unknown network '{network.model}'; expected one of {models}")
+    if network.model not in models.MODELS:
+        raise ConfigError(f"model: unknown network '{network.model}'; expected one of {sorted(MODELS)}")
     if data.reward not in REWARD_VARIANTS:
         raise ConfigError(f"reward: unknown variant '{data.reward}'; expected one of {', '.join(REWARD_VARIANTS)}")
     if run.snapshot_preset not in PRESETS:
@@ -463,7 +455,7 @@ def _validate(config: Config) -> None:
                  "store_pursuers", "snapshot_frequency", "decay_start", "final_learning_rate"):
         if config.value(name) < 0:
             raise ConfigError(f"{name}: must be >= 0, got {config.value(name)}")
-    if network_classes()[network.model].has_transformer:
+    if models.MODELS[network.model].transformer:
         for name in ("layers", "heads"):
             if config.value(name) < 1:
                 raise ConfigError(f"{name}: model '{network.model}' has a transformer, needs >= 1, got {config.value(name)}")

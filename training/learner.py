@@ -24,10 +24,9 @@ import torch
 
 from training.adam import RowAdam, one_seed_state_dict
 from training.buffer import ReplayBatch, trim_padding
-from training.checkpoint import network_from_config
 from training.config import LearnerConfig, NetworkConfig
 from training.losses import huber, quantile_huber_rows, quantile_td_target, td_target
-from training.networks import QNetwork
+from training.networks import QNetwork, network_from_config
 from training.networks.stacked import flat_view, flatten_weights, parameter_slices, seed_network, stack_network
 from training.torch_policy import as_tensors
 

@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from terl_rt.policy.contract import INPUT_NAMES
-from terl_rt.policy.onnx_policy import PolicyOutput, observation_inputs
+from terl_rt.policy.inputs import observation_inputs
+from terl_rt.policy.onnx_policy import PolicyOutput
 from terl_rt.sim.observation import Observation
 from training.networks import QNetwork
 

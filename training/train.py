@@ -45,7 +45,7 @@ metrics.jsonl holds one JSON object a line, told apart by "kind":
   snapshot's network is kept in snapshots/<env_step>/).
 
 `train_seeds` is the loop, read top to bottom; the helpers before it do one thing each.
-training/throughput.py times the loop's two halves (rollout, update) apart.
+training/lab/throughput.py times the loop's two halves (rollout, update) apart.
 """
 
 from __future__ import annotations

@@ -13,27 +13,20 @@ import terl_rt
 from terl_rt.cli.live import live_option, open_live
 from terl_rt.cli.options import (
     acting_of,
-    acting_options,
-    address_option,
-    backend_option,
     episodes_option,
-    evader_option,
     evaluate_with_progress,
     json_option,
     log_option,
-    max_steps_option,
     open_policy,
     policy_json,
     policy_option,
     policy_threads,
     resolve_scenarios,
+    run_options,
     scenario_file_option,
     scenarios_option,
-    seed_option,
     stdout_kept_for_json,
     suite_option,
-    threads_option,
-    workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option
 from terl_rt.evaluation.episodes import RESULTS_SCHEMA, ScenarioResult
@@ -109,13 +102,8 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
 @scenarios_option
 @scenario_file_option
 @suite_option
-@evader_option
 @episodes_option
-@seed_option
-@max_steps_option
-@workers_option
-@backend_option
-@address_option
+@run_options
 @log_option
 @live_option("Serve every step live, as it is taken,")
 @json_option
@@ -123,8 +111,6 @@ def write_csv(path: Path, results: list[ScenarioResult], info: dict) -> None:
     "--csv", "csv_path", type=str, default=None, metavar="FILE.csv",
     help="Also write one row per episode (seed, outcome, steps, collisions, captures, return) to this CSV file.",
 )
-@threads_option
-@acting_options
 @force_option
 def eval_command(
     policy_path, scenario_names, scenario_file, suite, evader, episodes, seed, max_steps, workers, backend, address,

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from terl_rt.cli.options import BadInput, json_option
-from terl_rt.policy.contract import PASS
+from terl_rt.policy.checks import PASS
 from terl_rt.policy.onnx_policy import check_contract
 
 

@@ -375,3 +375,15 @@ def evaluation_run_options(command):
     ):
         command = option(command)
     return command
+
+
+def run_options(command):
+    """The options that say how a command's episodes run, shared by `eval`, `sweep` and `report`,
+    stacked in this order: --evader, --seed, --max-steps, --workers, --backend, --address,
+    --threads and the acting options (`acting_options`)."""
+    for option in reversed((
+        evader_option, seed_option, max_steps_option, workers_option, backend_option, address_option, threads_option,
+        acting_options,
+    )):
+        command = option(command)
+    return command

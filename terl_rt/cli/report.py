@@ -13,13 +13,8 @@ import click
 from terl_rt.cli.options import (
     BadInput,
     acting_of,
-    acting_options,
-    address_option,
-    backend_option,
-    evader_option,
     evaluate_with_progress,
     json_option,
-    max_steps_option,
     open_policy,
     policies_option,
     policy_files,
@@ -27,9 +22,7 @@ from terl_rt.cli.options import (
     policy_threads,
     report_episodes_option,
     resolve_scenarios,
-    seed_option,
-    threads_option,
-    workers_option,
+    run_options,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.cli.report_comparison import ComparisonRun, compare
@@ -113,7 +106,6 @@ def command_line(
     help="Preset scenario (repeat for several) [default: the 10 paper presets and the 3 small-published "
     "ones; see `terl-rt scenarios`].",
 )
-@evader_option
 @click.option(
     "--beyond", is_flag=True,
     help="Also evaluate teams past the paper's: "
@@ -135,13 +127,7 @@ def command_line(
     help="Episodes in each world past the paper's, with --beyond [default: --episodes]: fewer keep a grid's "
     "report short, an episode there costing several of large-80's (see --beyond).",
 )
-@seed_option
-@max_steps_option
-@workers_option
-@backend_option
-@address_option
-@threads_option
-@acting_options
+@run_options
 @click.option(
     "--out", type=str, default="report", show_default=True, metavar="DIR",
     help="Folder to write results.md and results.png to (made if missing).",

@@ -13,26 +13,19 @@ import click
 from terl_rt.cli.eval import terl_rt_version
 from terl_rt.cli.options import (
     acting_of,
-    acting_options,
-    address_option,
     check_acting,
-    backend_option,
     episodes_option,
-    evader_option,
     json_option,
-    max_steps_option,
     open_policies,
     policies_option,
     policy_threads,
     progressbar,
     resolve_scenarios,
     run_backend,
+    run_options,
     scenario_file_option,
     scenarios_option,
-    seed_option,
     suite_option,
-    threads_option,
-    workers_option,
 )
 from terl_rt.cli.outputs import check_output, force_option, output_folder
 from terl_rt.evaluation.sweep import TABLE_COLUMNS, Sweep, run_sweep, sweep_json, sweep_markdown, table_rows
@@ -71,19 +64,12 @@ def write_tables(texts: dict[str, str], out_dir: Path, replace: bool = False) ->
 @scenarios_option
 @scenario_file_option
 @suite_option
-@evader_option
 @episodes_option
-@seed_option
-@max_steps_option
-@workers_option
-@backend_option
-@address_option
-@threads_option
+@run_options
 @click.option(
     "--out", type=str, default="sweep", show_default=True, metavar="DIR",
     help="Folder to write sweep.json, sweep.csv and sweep.md to (made if missing).",
 )
-@acting_options
 @json_option
 @force_option
 def sweep_command(

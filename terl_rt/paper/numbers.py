@@ -18,13 +18,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from terl_rt.policy.models import MODELS
+
 TERL = "TERL"
 """The paper's name for its own method in every table."""
 
-PAPER_METHODS: dict[str, str] = {
-    "terl": TERL, "iqn": "IQN", "dqn": "DQN", "mean": "MEAN", "terl-no-re": "w/o RE", "terl-no-ts": "w/o TS",
-}
-"""The paper's name of each model (the `terl.model` metadata, policy.md section 1), in its order."""
+PAPER_METHODS: dict[str, str] = {name: model.label for name, model in MODELS.items()}
+"""The paper's name of each model (the `terl.model` metadata, policy.md section 1), in its order
+(terl_rt.policy.models)."""
 
 BASELINES: tuple[str, ...] = ("IQN", "DQN", "MEAN")
 """The methods the paper compares TERL with (its Fig. 3 and CC table)."""

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from training.card import CardError, evaluation_lines
+from training.lab.card import CardError, evaluation_lines
 
 
 def comparison_file(tmp_path, model="iqn"):

@@ -18,14 +18,14 @@ from pathlib import Path
 import pytest
 import torch
 
+from terl_rt.policy.contract import META_METHOD, META_SEED
 from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
-from training.grid import LocalProcesses, plan_grid, run_grid
+from training.lab.grid import LocalProcesses, plan_grid, run_grid
+from training.lab.recipe import load_recipe, segment_folder
+from training.lab.ship import seed_row, shipped_line
 from training.onnx_weights import network_from_onnx
-from training.recipe import load_recipe, segment_folder
 from training.run_lock import LOCK_FILE, RUN_HELD, holding_run_folder
-from training.ship import seed_row, shipped_line
-from terl_rt.policy.contract import META_METHOD, META_SEED
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 
@@ -264,7 +264,7 @@ def test_a_grid_run_again_resumes_a_cut_off_cell_to_the_same_bytes_and_the_devic
 @pytest.mark.ray
 @pytest.mark.slow  # a Ray instance of its own: 2-5 min on a loaded machine
 def test_on_ray_each_cell_is_a_task_and_a_failing_one_gives_its_error_line(tmp_path):
-    grid_ray = pytest.importorskip("training.grid_ray", reason="needs Ray: pip install -e '.[ray]'")
+    grid_ray = pytest.importorskip("training.lab.grid_ray", reason="needs Ray: pip install -e '.[ray]'")
     cells = plan_grid(write_recipes(tmp_path / "recipes")[:1], [1, 2], tmp_path / "runs")
     runner = grid_ray.RayCells(None, cpus=2, program=("-c", STAND_IN.replace("WAIT_S", "0")))
     lines: list[str] = []
@@ -358,7 +358,7 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
 
 # ---------------------------------------------------------------- seeds trained together
 def test_seeds_per_process_stacks_each_methods_unfinished_cells_in_seed_order(tmp_path):
-    from training.grid import CellStack, stack_cells
+    from training.lab.grid import CellStack, stack_cells
 
     cells = plan_grid(write_recipes(tmp_path / "recipes"), [1, 2, 3], tmp_path / "runs")
     stacks = stack_cells(cells, 2)

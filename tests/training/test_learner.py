@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from training.buffer import ReplayBuffer, pad_evader_slots
-from training.checkpoint import network_from_config
 from training.config import SECTION_OF, Config, ConfigError
-from training.export import INPUT_NAMES
 from training.losses import quantile_td_target, td_target
+from training.networks import network_from_config
+from terl_rt.policy.contract import INPUT_NAMES
 from training.checkpoint import read_counters
 from terl_rt.sim.reward import taught_reward
 from terl_rt.sim.rollout import Rollout
@@ -185,7 +185,7 @@ def test_kept_snapshots_export_and_refuse_to_resume(tmp_path):
         train(config, tmp_path / "resumed", resume=kept[0], show_progress=False)
 
 def test_dropout_of_the_transformer_layers_comes_from_the_config():
-    from training.checkpoint import network_from_config
+    from training.networks import network_from_config
 
     for p in (0.0, 0.1):
         model = network_from_config(Config.of(hidden=16, layers=1, heads=2, dropout=p).network)
@@ -331,7 +331,7 @@ class ConstantQ(torch.nn.Module):
 
 
 def test_value_check_compares_q_with_the_discounted_return_that_follows():
-    from training.values import value_check
+    from training.lab.values import value_check
 
     scenario = Scenario.preset("small-11").replace(max_steps=3)
     check = value_check(ConstantQ(), tiny(gamma=0.5), scenario, episodes=1, seed=3)
@@ -351,7 +351,7 @@ def test_value_check_compares_q_with_the_discounted_return_that_follows():
 
 
 def test_an_exploring_value_check_follows_the_episode_its_random_actions_make():
-    from training.values import value_check
+    from training.lab.values import value_check
 
     scenario = Scenario.preset("small-11").replace(max_steps=5)
     greedy = value_check(ConstantQ(), tiny(), scenario, episodes=1, seed=3)

@@ -1,4 +1,4 @@
-"""The learner's recipe (docs/training.md, "What mattered", 9 and 10): updates that cost
+"""The learner's recipe (docs/training-mattered.md, 9 and 10): updates that cost
 what the batch's entities cost (trimmed padding, bf16), rewards taught on a scale where the
 loss works, survivors bootstrapped as the published trainer does, and the bar values must meet."""
 
@@ -15,13 +15,12 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.buffer import ReplayBuffer, trim_padding
 from training.config import Config, ConfigError
-from training.networks import network_classes
-from training.checkpoint import network_from_config
+from training.lab.throughput import PLAIN, benchmark
+from training.lab.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 from training.learner import Learner, td_losses
 from training.losses import quantile_td_target
-from training.throughput import PLAIN, benchmark
+from training.networks import network_classes, network_from_config
 from training.train import TransitionStore, as_tensors, epsilon_greedy, greedy_actions, taught_step
-from training.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 
 
 def tiny(**changes) -> Config:

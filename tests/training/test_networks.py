@@ -9,9 +9,10 @@ import pytest
 import torch
 from torch import nn
 
-from training.config import MODELS
+from terl_rt.policy.models import MODELS
 from training.export import example_inputs
-from training.networks import build_network, fixed_fractions, network_classes
+from training.config import Config
+from training.networks import build_network, fixed_fractions, network_classes, network_from_config
 from training.networks.encoders import (
     TargetSelection,
     masked_max,
@@ -44,8 +45,16 @@ def run(model: nn.Module, inputs: dict[str, torch.Tensor]) -> tuple[torch.Tensor
         return model.policy_outputs(*(inputs[name] for name in NAMES))
 
 
-def test_the_registry_builds_every_model_a_config_may_name():
-    assert sorted(MODELS) == ALL_MODELS  # config.MODELS: the names without importing torch
+def test_each_network_class_is_registered_under_a_name_of_the_runtimes_registry():
+    assert list(network_classes()) == list(MODELS)
+    for name, cls in network_classes().items():
+        assert cls.model_name == name and cls.has_transformer == MODELS[name].transformer
+
+
+def test_a_configs_network_part_builds_its_network_with_its_dropout():
+    model = network_from_config(Config.of(model="terl", hidden=16, layers=1, heads=2, dropout=0.25).network)
+    assert model.config == {"name": "terl", "hidden": 16, "layers": 1, "heads": 2}
+    assert {module.p for module in model.modules() if isinstance(module, nn.Dropout)} == {0.25}
 
 
 @pytest.mark.parametrize("name", ALL_MODELS)

@@ -15,13 +15,13 @@ from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
 from training.__main__ import main
 from training.buffer import ReplayBuffer
-from training.checkpoint import load_checkpoint, network_from_config, read_config, read_counters
+from training.checkpoint import load_checkpoint, read_config, read_counters
 from training.config import Config
+from training.lab.throughput import PlainLearner
 from training.learner import Learner
-from training.networks import network_classes
+from training.networks import network_classes, network_from_config
 from training.networks.stacked import flatten_weights, seed_network, stack_network
 from training.networks.terl import ValidTokens, capacity_of
-from training.throughput import PlainLearner
 from training.train import METRICS_FILE, SeedFailed, SeedRun, TransitionStore, epsilon_greedy, train_seeds
 
 

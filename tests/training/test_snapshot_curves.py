@@ -7,9 +7,10 @@ import json
 import pytest
 
 from training.__main__ import main
-from training.checkpoint import CONFIG_FILE, Counters, network_from_config, save_snapshot
+from training.checkpoint import CONFIG_FILE, Counters, save_snapshot
 from training.config import Config
-from training.snapshot_curves import EVALUATIONS_FILE
+from training.lab.snapshot_curves import EVALUATIONS_FILE
+from training.networks import network_from_config
 from training.train import METRICS_FILE
 
 
@@ -87,7 +88,7 @@ def test_a_curve_names_what_it_cannot_read(tmp_path, capsys):
 
 
 def test_the_stage_starts_of_seeds_on_one_schedule_are_drawn_once(tmp_path):
-    from training.curves import stage_starts
+    from training.lab.curves import stage_starts
 
     logs = []
     for seed, stages in ((1, [(200, "curriculum-2"), (100, "curriculum-1")]), (2, [(100, "curriculum-1")])):
@@ -99,8 +100,8 @@ def test_the_stage_starts_of_seeds_on_one_schedule_are_drawn_once(tmp_path):
 
 
 def test_a_pick_takes_the_most_successes_then_the_fewest_collisions_then_the_latest_step():
-    from training.curves import CurvesError
-    from training.snapshot_curves import picked_snapshot
+    from training.lab.curves import CurvesError
+    from training.lab.snapshot_curves import picked_snapshot
 
     def point(step, scenario, success, collisions):
         return {"env_step": step, "scenario": scenario, "success_rate": success, "collision_ratio_mean": collisions}

@@ -29,7 +29,7 @@ def bench_command(seconds: float, stacks: list[int], as_json: bool, **options) -
     Example:
       python -m training bench --stacks 1-4 --seconds 5 --json > bench.json
     """
-    from training.throughput import benchmark
+    from training.lab.throughput import benchmark
 
     config = resolve_config(options, default_model="terl")
     set_threads(config.run.threads)

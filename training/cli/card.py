@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from training.card import DEFAULT_MACHINE
 from training.cli.options import output_option
+from training.lab.card import DEFAULT_MACHINE
 
 
 @click.command("card")
@@ -26,7 +26,7 @@ def card_command(run: Path, onnx: Path, recipe: Path, machine: str, comparison: 
     """Write the model card of the policy exported from RUN_DIR's best snapshot: its recipe and
     the sha256 of its weights, body, size, training cost, every snapshot evaluation and (with
     --comparison) its evaluation on the paper's presets."""
-    from training.card import model_card
+    from training.lab.card import model_card
 
     output.write_text(model_card(run, onnx, recipe, machine, comparison))
     click.echo(f"{output}: model card of {onnx}")

@@ -16,7 +16,7 @@ from training.cli.options import output_option, run_folder, set_threads
 @click.option("--title", default="", help="Figure title.")
 def plot_command(run: Path, output: Path, title: str) -> None:
     """Plot a run's training curves (success rate, return, collision ratio) as a PNG."""
-    from training.curves import plot_curves
+    from training.lab.curves import plot_curves
     from training.train import METRICS_FILE
 
     path = plot_curves(run / METRICS_FILE, output, title=title)
@@ -29,8 +29,8 @@ def plot_command(run: Path, output: Path, title: str) -> None:
 def snapshots_command(run: Path, as_json: bool) -> None:
     """Print every snapshot evaluation of a run so far (it may still be training): step, score,
     and success / travel time / collision ratio on the current stage and the snapshot preset."""
-    from training.card import snapshot_table
-    from training.curves import read_metrics
+    from training.lab.card import snapshot_table
+    from training.lab.curves import read_metrics
     from training.train import METRICS_FILE
 
     if not (run / METRICS_FILE).is_file():
@@ -83,8 +83,8 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
         --method terl-authors-small -o runs/three/terl-authors-small-seed-1.onnx
     """
     from terl_rt.sim.scenario import Scenario, ScenarioError
-    from training.curves import plot_snapshot_curves, stage_starts
-    from training.snapshot_curves import picked_snapshot, run_seed, snapshot_curve, with_interval
+    from training.lab.curves import plot_snapshot_curves, stage_starts
+    from training.lab.snapshot_curves import picked_snapshot, run_seed, snapshot_curve, with_interval
     from training.train import METRICS_FILE, snapshot_folder
 
     if pick is not None and pick not in presets:

@@ -8,9 +8,9 @@ import click
 
 from terl_rt.command_line import address_option
 from terl_rt.evaluation.backends import BACKENDS, RAY_INSTALL_HINT
-from training.card import DEFAULT_MACHINE
 from training.cli.options import seed_list
 from training.config import ConfigError
+from training.lab.card import DEFAULT_MACHINE
 
 
 @click.command("grid")
@@ -65,15 +65,15 @@ def grid_command(recipes: tuple[Path, ...], seeds: list[int], out: Path, process
       python -m training grid recipes/comparison/iqn.toml --seeds 4 --out runs/comparison
       python -m training grid recipes/terl-authors.toml --seeds 1-3 --seeds-per-process 3 --out runs/authors
     """
-    from training.grid import LocalProcesses, plan_grid, run_grid, stack_cells
-    from training.ship import ship_grid
+    from training.lab.grid import LocalProcesses, plan_grid, run_grid, stack_cells
+    from training.lab.ship import ship_grid
 
     if address is not None and backend != "ray":
         raise ConfigError("--address names a Ray cluster; pass --backend ray with it")
     cells = stack_cells(plan_grid(recipes, seeds, out, device=device), seeds_per_process)
     if backend == "ray":
         try:
-            from training.grid_ray import RayCells
+            from training.lab.grid_ray import RayCells
         except ModuleNotFoundError as error:
             if error.name != "ray" and not str(error.name).startswith("ray."):
                 raise

@@ -6,7 +6,6 @@ from __future__ import annotations
 import click
 
 from terl_rt.command_line import TerlGroup
-from training.card import CardError
 from training.cli.bench import bench_command
 from training.cli.card import card_command
 from training.cli.curves import curve_command, plot_command, snapshots_command
@@ -16,7 +15,8 @@ from training.cli.run import run_command
 from training.cli.train import train_command
 from training.cli.values import values_command
 from training.config import ConfigError
-from training.curves import CurvesError
+from training.lab.card import CardError
+from training.lab.curves import CurvesError
 from training.run_lock import RUN_HELD, RunFolderHeld
 from training.stops import TrainingStopped
 

@@ -50,7 +50,7 @@ def run_command(recipe: Path, out: Path, threads: int | None, seed: int | None, 
       python -m training run recipes/scale-fine-tune.toml --seeds 1-3 --out runs/ft3 \\
           --start 'exported/comparison/terl-authors-seed-{seed}.onnx'
     """
-    from training.recipe import load_recipe, run_recipe
+    from training.lab.recipe import load_recipe, run_recipe
     from training.train import train_seeds
 
     if seed is not None and seeds is not None:

@@ -27,9 +27,9 @@ def values_command(
     exploring ones, --epsilon), every pursuer-step's Q(s, a) against the discounted return of the
     rewards the network was taught (its config's reward transform). Values track the returns when
     the correlation is at least 0.5 and the mean |Q - return| under a tenth of the returns' range
-    (training.values.ValueCheck.tracks_returns); both in the taught units."""
+    (training.lab.values.ValueCheck.tracks_returns); both in the taught units."""
     from training.checkpoint import load_network
-    from training.values import value_check
+    from training.lab.values import value_check
 
     try:
         scenario = Scenario.preset(preset)

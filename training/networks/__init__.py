@@ -7,6 +7,10 @@ and `model.q_values(ego, teammates, evaders, obstacles, mask) -> [B, 9]`.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from torch import nn
+
 from training.networks.baselines import (
     DQNBaseline,
     IQNBaseline,
@@ -15,6 +19,9 @@ from training.networks.baselines import (
 )
 from training.networks.encoders import NetworkOutput, QNetwork, fixed_fractions
 from training.networks.terl import TERLNetwork, TERLNoTargetSelection
+
+if TYPE_CHECKING:
+    from training.config import NetworkConfig
 
 __all__ = [
     "DQNBaseline",
@@ -28,11 +35,13 @@ __all__ = [
     "build_network",
     "fixed_fractions",
     "network_classes",
+    "network_from_config",
 ]
 
 
 def network_classes() -> dict[str, type[QNetwork]]:
-    """Registry: model name -> class, for `terl`, `iqn`, `dqn`, `mean`, `terl-no-re`, `terl-no-ts`."""
+    """Model name (terl_rt.policy.models) -> class, for `terl`, `iqn`, `dqn`, `mean`, `terl-no-re`,
+    `terl-no-ts`."""
     classes = (
         TERLNetwork,
         IQNBaseline,
@@ -57,3 +66,12 @@ def build_network(name: str, hidden: int = 256, layers: int = 4, heads: int = 8)
     if name not in classes:
         raise ValueError(f"unknown network '{name}'; expected one of {sorted(classes)}")
     return classes[name](hidden=hidden, layers=layers, heads=heads)
+
+
+def network_from_config(network: NetworkConfig) -> QNetwork:
+    """The network a config's network part describes (fresh weights), its dropout layers at `network.dropout`."""
+    model = build_network(network.model, network.hidden, network.layers, network.heads)
+    for module in model.modules():
+        if isinstance(module, nn.Dropout):
+            module.p = network.dropout
+    return model

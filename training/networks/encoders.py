@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from terl_rt.policy.contract import EGO_FEATURES, EVADER_FEATURES, OBSTACLE_FEATURES, TEAMMATE_FEATURES
+from terl_rt.policy.models import MODELS
 from terl_rt.sim.actions import PURSUER_ACTIONS
 
 NUM_COSINES = 64
@@ -229,8 +230,8 @@ def check_inputs(
 class QNetwork(nn.Module):
     """Base of every pursuer Q-network: one call signature, one head interface.
 
-    Subclasses set `model_name`, `has_transformer`, `has_target_selection` and
-    `distributional`, build their body in `__init__` and implement `embed`. `config` holds the construction
+    Subclasses set `model_name` (a name of terl_rt.policy.models, which says whether the body
+    has a transformer), `has_target_selection` and `distributional`, build their body in `__init__` and implement `embed`. `config` holds the construction
     arguments, so `build_network(**model.config)` rebuilds the same architecture.
 
     The head is an `IQNHead` (quantiles at the given fractions) except for `dqn`,
@@ -242,11 +243,15 @@ class QNetwork(nn.Module):
     """Registry name, written to the ONNX metadata as `terl.model`."""
     has_transformer: ClassVar[bool] = False
     """True when the body has transformer layers (L, h >= 1); a body without records both as 0,
-    the value the contract metadata gives (read by config validation without building one)."""
+    the value the contract metadata gives. Set from the registry's `Model.transformer`."""
     has_target_selection: ClassVar[bool] = False
     """True when forward returns target_weights [B, E]."""
     distributional: ClassVar[bool] = True
     """True for IQN heads (quantile Huber loss), False for `dqn` (Huber TD loss)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.has_transformer = MODELS[cls.model_name].transformer
 
     def __init__(self, hidden: int, layers: int, heads: int) -> None:
         super().__init__()

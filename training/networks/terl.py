@@ -274,7 +274,6 @@ class TERLNetwork(QNetwork):
     """
 
     model_name = "terl"
-    has_transformer = True
     has_target_selection = True
 
     def __init__(self, hidden: int = 256, layers: int = 4, heads: int = 8) -> None:
@@ -305,7 +304,6 @@ class TERLNoTargetSelection(QNetwork):
     """Ablation `terl-no-ts`: the TERL transformer, Linear(2H -> H)([s, g]) straight into the IQN head."""
 
     model_name = "terl-no-ts"
-    has_transformer = True
 
     def __init__(self, hidden: int = 256, layers: int = 4, heads: int = 8) -> None:
         super().__init__(hidden, layers, heads)

@@ -21,7 +21,7 @@ from terl_rt.evaluation.stats import success_interval
 from terl_rt.files import atomic_output
 from terl_rt.sim.scenario import Scenario
 from training.checkpoint import STATE_FILE, load_network, read_config
-from training.curves import CurvesError, read_metrics
+from training.lab.curves import CurvesError, read_metrics
 from training.train import METRICS_FILE, SNAPSHOTS_FOLDER, greedy_evaluation
 
 EVALUATIONS_FILE = "evaluations.json"

@@ -14,17 +14,13 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from terl_rt.paper.numbers import PAPER_METHODS
+from terl_rt.policy.models import model_title
 from training.config import Config
-from training.curves import read_metrics
+from training.lab.curves import read_metrics
 
 if TYPE_CHECKING:
     import torch
 
-PAPER_NAMES = {
-    **PAPER_METHODS, "terl-no-re": "TERL w/o RE (relation extraction)", "terl-no-ts": "TERL w/o TS (target selection)",
-}
-"""The paper's name of each model (policy.md sections 1 and 4), the ablations' spelt out."""
 DEFAULT_MACHINE = "one core of the 2-core CPU machine (one torch thread)"
 """Where a run trained, in words, unless a card is told otherwise."""
 
@@ -145,7 +141,7 @@ def model_card(
     _, _, counters = load_network(run)
     network = config.network
     snapshots = [r for r in read_metrics(run / "metrics.jsonl") if r.get("kind") == "snapshot"]
-    name = PAPER_NAMES.get(network.model, network.model)
+    name = model_title(network.model)
     lines = [
         f"# {onnx} — {name}, a run of {counters.env_step // 1000} k environment steps",
         "",

@@ -77,7 +77,7 @@ def plot_snapshot_curves(curves: dict[str, list[dict[str, Any]]], out_path: str 
                          stages: Sequence[dict[str, Any]] = ()) -> Path:
     """Write a PNG of learning curves of kept snapshots, a column a preset and a colour a run.
 
-    `curves`: label -> the run's curve points (`training.snapshot_curves.with_interval`: step,
+    `curves`: label -> the run's curve points (`training.lab.snapshot_curves.with_interval`: step,
     scenario, success rate with its exact interval, collision ratio). Top row: success rate, its
     95 % interval as error bars; bottom row: collision ratio. x axis: environment steps (the
     runs' points at one step drawn a little apart, left to right in `curves`' order).

@@ -19,7 +19,7 @@ import ray
 from ray.exceptions import RayError, TaskCancelledError
 
 from terl_rt.evaluation.ray_backend import connect
-from training.grid import RUN_PROGRAM, STOPPED, Cell, CellStack
+from training.lab.grid import RUN_PROGRAM, STOPPED, Cell, CellStack
 
 FAILED = 1
 """The exit status given to a cell whose task Ray lost (its worker or node died)."""
@@ -41,7 +41,7 @@ def run_cell(program: Sequence[str], arguments: Sequence[str], log: str, cwd: st
 
 
 class RayCells:
-    """Cells (or stacks of seeds trained together, one a task) as Ray tasks of `threads` CPUs each (training.grid.CellRunner)."""
+    """Cells (or stacks of seeds trained together, one a task) as Ray tasks of `threads` CPUs each (training.lab.grid.CellRunner)."""
 
     def __init__(self, address: str | None, cpus: int | None = None, threads: int = 1,
                  program: Sequence[str] = RUN_PROGRAM) -> None:

@@ -1,5 +1,5 @@
 """A fine-tune's start: a checkpoint, a snapshot or an exported policy, laid down as the whole
-checkpoint that the first segment of a recipe with `from_step` continues (training.recipe).
+checkpoint that the first segment of a recipe with `from_step` continues (training.lab.recipe).
 
     python -m training run recipes/scale-fine-tune.toml --start runs/a/1-curriculum --out runs/b
     python -m training run recipes/scale-fine-tune.toml --start exported/comparison/terl-authors-seed-1.onnx --out runs/c

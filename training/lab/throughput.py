@@ -26,9 +26,9 @@ from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import CURRICULUM_STARTS, CURRICULUM_STEPS, Scenario
 from terl_rt.sim.world import World
 from training.buffer import ReplayBatch, ReplayBuffer
-from training.checkpoint import network_from_config
 from training.config import CURRICULUM_STAGES, Config
 from training.learner import Learner, td_losses
+from training.networks import network_from_config
 from training.train import TransitionStore, buffer_evader_slots, epsilon_greedy
 
 PLAIN = "one seed (7725bd1)"

@@ -1,6 +1,6 @@
 """A method x seed grid of recipes, each cell a run of its own: `python -m training run RECIPE
 --out OUT/<method>/seed-<S> --seed S --threads 1` in a process of its own, on this machine or
-as a Ray task (training.grid_ray), its output in OUT/<method>/seed-<S>.log. With seeds trained
+as a Ray task (training.lab.grid_ray), its output in OUT/<method>/seed-<S>.log. With seeds trained
 together (`stack_cells`), a process trains several seeds of a method (`run --seeds`), each in its
 own cell folder, its output in OUT/<method>/seeds-<S>-<S>....log.
 
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from training.recipe import Recipe, RecipeError, load_recipe, recipe_finished
+from training.lab.recipe import Recipe, RecipeError, load_recipe, recipe_finished
 from training.run_lock import RUN_HELD
 
 RUN_PROGRAM = ("-m", "training", "run")
@@ -170,7 +170,7 @@ def seeds_in(folder: Path) -> set[int]:
 
 
 class CellRunner(Protocol):
-    """Where cells run (LocalProcesses here, training.grid_ray.RayCells on a Ray cluster)."""
+    """Where cells run (LocalProcesses here, training.lab.grid_ray.RayCells on a Ray cluster)."""
 
     def start(self, cell: Cell | CellStack) -> Any:
         """Start the cell's (or stack's) run, its output appended to cell.log; returns a handle."""

@@ -5,7 +5,7 @@ Q-value of the action it takes against the discounted return that follows, of th
 the learner is taught under the network's own config (`training.train.taught_step`:
 shaping, collision value, scale, what ends a transition). A Q-value far above the returns that
 follow, or uncorrelated with them, is a value function that has not caught up with its
-reward (docs/training.md, "What mattered", 7: neither the target copies nor the values' level
+reward (docs/training-mattered.md, 7: neither the target copies nor the values' level
 explained the drift there; with kappa = 1 the loss passes only the signs of the errors).
 """
 

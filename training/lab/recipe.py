@@ -24,7 +24,7 @@ segment's network, optimizer, counters and replay buffer (a fine-tune when it ch
 
 A recipe that continues a start names the step its steps are counted from, `from_step`; its
 first segment continues the start (`python -m training run RECIPE --start START`: a checkpoint,
-a snapshot or an exported policy, training.start), and a start at another step shifts every
+a snapshot or an exported policy, training.lab.start), and a start at another step shifts every
 step of the recipe (the segments' ends, `decay_start`, the curriculum's `curriculum_steps`) by
 the difference. The start's network (body and sizes) and the scale of the rewards its values
 were learnt in (`reward_scale`) replace the recipe's in every segment (CARRIED_FIELDS):
@@ -82,8 +82,8 @@ from typing import Any
 
 from training.checkpoint import STATE_FILE, export_checkpoint, read_config, read_counters
 from training.config import SECTIONS, Config, ConfigError, read_fields
+from training.lab.start import START_FOLDER, StartError, place_start, seed_start
 from training.run_lock import holding_run_folder
-from training.start import START_FOLDER, StartError, place_start, seed_start
 from training.train import BEST_FOLDER, SeedRun
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
@@ -357,7 +357,7 @@ def finished(folder: Path, segment: Segment) -> bool:
 
 def continuing(recipe: Recipe, out: Path) -> Recipe:
     """`recipe` as the run in `out` (a seed's folder) trains it: shifted to its start's step and
-    with its start's network when it continues a start laid down there (training.start), else as
+    with its start's network when it continues a start laid down there (training.lab.start), else as
     it is."""
     start = Path(out) / START_FOLDER
     if recipe.from_step is None or not (start / STATE_FILE).is_file():
@@ -427,7 +427,7 @@ def run_recipe(
 
     `start` is what the first segment of a recipe with from_step continues (default: the
     recipe's own `start`; a recipe without from_step takes none): a checkpoint, snapshot or .onnx
-    policy (training.start), "{seed}" in it replaced by each seed's number. It is laid down in
+    policy (training.lab.start), "{seed}" in it replaced by each seed's number. It is laid down in
     each seed's OUT/0-start/ and the recipe shifted to its step, with its CARRIED_FIELDS.
     """
     out = Path(out)

@@ -1,4 +1,4 @@
-"""Shipping a grid (training.grid): every finished seed's policy and one card per method.
+"""Shipping a grid (training.lab.grid): every finished seed's policy and one card per method.
 
 Into a folder (exported/comparison): `<method>-seed-<S>.onnx`, the cell's shipped checkpoint
 (its recipe's `ships_from`: the run's best snapshot, or its last checkpoint) with `terl.method`
@@ -15,12 +15,14 @@ from typing import Any
 
 from terl_rt.files import atomic_output
 from terl_rt.policy.contract import META_METHOD, META_SEED
-from training.card import PAPER_NAMES, model_lines, recipe_line, settings, snapshot_row, weights_line
-from training.checkpoint import Counters, export_checkpoint, network_from_config, read_config, read_counters
-from training.curves import plot_seed_curves, read_metrics
-from training.grid import Cell
-from training.recipe import Recipe, continuing, recipe_finished, segment_folder, shipped_checkpoint
-from training.start import START_FOLDER, read_start
+from terl_rt.policy.models import model_title
+from training.checkpoint import Counters, export_checkpoint, read_config, read_counters
+from training.lab.card import model_lines, recipe_line, settings, snapshot_row, weights_line
+from training.lab.curves import plot_seed_curves, read_metrics
+from training.lab.grid import Cell
+from training.lab.recipe import Recipe, continuing, recipe_finished, segment_folder, shipped_checkpoint
+from training.lab.start import START_FOLDER, read_start
+from training.networks import network_from_config
 from training.train import METRICS_FILE
 
 
@@ -74,7 +76,7 @@ def method_card(
     a row per seed (a seed not shipped says so and names its log)."""
     recipe = continuing(seeds[0][1], seeds[0][0].out)
     config = recipe.segments[-1].config
-    name = PAPER_NAMES.get(config.network.model, config.network.model)
+    name = model_title(config.network.model)
     card_folder = figure.parent
     command = (f"python -m training grid {recipe.path} --seeds {','.join(str(cell.seed) for cell, _ in seeds)} "
                f"--out {seeds[0][0].out.parent.parent} --ship {card_folder}")
@@ -114,7 +116,7 @@ def method_card(
 
 def start_lines(seeds: Sequence[tuple[Cell, Recipe]]) -> list[str]:
     """The card's line on what the seeds continue, for a recipe that continues a start: each
-    seed's start (training.start: its source, what it is, its network and step count)."""
+    seed's start (training.lab.start: its source, what it is, its network and step count)."""
     starts = {cell.seed: (read_start(cell.out), cell.out / START_FOLDER) for cell, _ in seeds}
     if not any(record for record, _ in starts.values()):
         return []
