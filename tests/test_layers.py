@@ -55,3 +55,15 @@ def test_the_replay_buffer_takes_its_input_names_from_the_contract():
     source = (ROOT / "training" / "buffer.py").read_text()
     assert "training.export" not in source
     assert re.search(r"^from terl_rt\.policy\.contract import .*\bINPUT_NAMES\b", source, re.MULTILINE)
+
+
+MODULE_LINES = 450
+"""Rooms of one job (STYLE.md): past about this many lines a module usually holds two jobs."""
+
+
+def test_no_module_of_the_runtime_is_over_450_lines():
+    sizes = {
+        str(path.relative_to(ROOT)): len(path.read_text().splitlines()) for path in (ROOT / "terl_rt").rglob("*.py")
+    }
+    over = {path: lines for path, lines in sizes.items() if lines > MODULE_LINES}
+    assert over == {}, f"over {MODULE_LINES} lines: split each along the seam its own sections mark"

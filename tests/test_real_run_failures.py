@@ -22,7 +22,8 @@ from onnx_models import random_observation, write_constant_policy, write_failing
 from processes import wait_for_log
 
 from terl_rt.logs.format import EpisodeLogError, decode
-from terl_rt.logs.reader import ZEROED_TAIL_BYTES, EpisodeLogReader
+from terl_rt.logs.reader import EpisodeLogReader
+from terl_rt.logs.scan import ZEROED_TAIL_BYTES
 from terl_rt.logs.resimulate import verify
 from terl_rt.policy.contract import ContractError
 from terl_rt.policy.embed import decide

@@ -26,15 +26,9 @@ from training.losses import huber, linear_schedule, quantile_huber_loss, quantil
 from training.buffer import ReplayBuffer
 from training.learner import Learner
 from training.networks import network_classes
-from training.train import (
-    METRICS_FILE,
-    REPLAY_FILE,
-    epsilon_greedy,
-    recent_means,
-    train,
-    training_scenarios,
-    TransitionStore,
-)
+from training.acting import TransitionStore, epsilon_greedy
+from training.seed_state import METRICS_FILE, REPLAY_FILE, recent_means, training_scenarios
+from training.train import train
 
 
 def tiny_config(**changes) -> Config:
@@ -336,7 +330,7 @@ def test_a_refill_stopped_midway_goes_on_after_the_next_resume(tmp_path, monkeyp
             signal.raise_signal(signal.SIGTERM)
         return epsilon_greedy(*args)
 
-    monkeypatch.setattr("training.train.epsilon_greedy", act_then_stop)
+    monkeypatch.setattr("training.seed_state.epsilon_greedy", act_then_stop)
     with pytest.raises(TrainingStopped):
         train(config.replace(total_steps=280, learning_starts=8, save_replay=True), out, resume=out, show_progress=False)
     cut = read_counters(out)
@@ -364,7 +358,7 @@ def test_without_save_replay_only_a_stop_saves_the_buffer_and_the_resume_goes_on
             signal.raise_signal(signal.SIGTERM)
         return epsilon_greedy(*args)
 
-    monkeypatch.setattr("training.train.epsilon_greedy", act_then_stop)
+    monkeypatch.setattr("training.seed_state.epsilon_greedy", act_then_stop)
     with pytest.raises(TrainingStopped):
         train(config, out, show_progress=False)
     monkeypatch.undo()

@@ -18,7 +18,7 @@ from terl_rt.policy.onnx_policy import OnnxPolicy
 from training.__main__ import main
 from training.checkpoint import load_network, read_counters
 from training.config import Config
-from training.train import METRICS_FILE
+from training.seed_state import METRICS_FILE
 
 
 def smoke_config(**changes) -> Config:

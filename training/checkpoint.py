@@ -55,14 +55,14 @@ class Counters:
     stages: list[str] = field(default_factory=list)
     """scenarios trained on, in the order first met (e.g. curriculum-1, curriculum-2)."""
     best_score: float | None = None
-    """score of the best snapshot so far (training.train.snapshot_score), None before the first."""
+    """score of the best snapshot so far (training.seed_state.snapshot_score), None before the first."""
     best_step: int | None = None
     """environment step of that snapshot."""
     replay_transitions: int | None = None
     """transitions the replay buffer held at this checkpoint: what a resume without the saved
     buffer refills before updating again (None in checkpoints from before it was recorded)."""
     snapshot_evaluator: str | None = None
-    """what measured the snapshots behind best_score (training.train.SNAPSHOT_EVALUATOR; None in
+    """what measured the snapshots behind best_score (training.seed_state.SNAPSHOT_EVALUATOR; None in
     checkpoints from before snapshots ran through terl_rt.evaluation)."""
 
 

@@ -22,10 +22,9 @@ from terl_rt.sim.reward import taught_reward
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
-from training.train import (
-    BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, TransitionStore, learning_rate_at, snapshot_score,
-    subsample_per_group, train,
-)
+from training.acting import TransitionStore, subsample_per_group
+from training.seed_state import BEST_FOLDER, METRICS_FILE, REPLAY_FILE, SNAPSHOTS_FOLDER, snapshot_score
+from training.train import learning_rate_at, train
 
 SHAPES = {"ego": (4,), "teammates": (5, 7), "evaders": (8, 7), "obstacles": (5, 5), "mask": (19,)}
 

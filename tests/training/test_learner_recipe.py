@@ -20,7 +20,8 @@ from training.lab.values import MAX_GAP_SHARE, MIN_CORRELATION, ValueCheck
 from training.learner import Learner, td_losses
 from training.losses import quantile_td_target
 from training.networks import network_classes, network_from_config
-from training.train import TransitionStore, as_tensors, epsilon_greedy, greedy_actions, taught_step
+from training.acting import TransitionStore, epsilon_greedy, greedy_actions, taught_step
+from training.torch_policy import as_tensors
 
 
 def tiny(**changes) -> Config:
@@ -181,7 +182,8 @@ def test_values_track_the_returns_only_when_correlated_and_close():
 
 # ---------------------------------------------------------------- the acting network
 def test_an_actor_never_refreshed_acts_as_the_first_network_does(tmp_path):
-    from training.train import REPLAY_FILE, train
+    from training.seed_state import REPLAY_FILE
+    from training.train import train
 
     runs = {
         # the online network acts, and learns too slowly to change (its weights stay the first ones)

@@ -22,7 +22,9 @@ from training.learner import Learner
 from training.networks import network_classes, network_from_config
 from training.networks.stacked import flatten_weights, seed_network, stack_network
 from training.networks.terl import ValidTokens, capacity_of
-from training.train import METRICS_FILE, SeedFailed, SeedRun, TransitionStore, epsilon_greedy, train_seeds
+from training.acting import TransitionStore, epsilon_greedy
+from training.seed_state import METRICS_FILE, SeedFailed, SeedRun
+from training.train import train_seeds
 
 
 def tiny(**changes) -> Config:

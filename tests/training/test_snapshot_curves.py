@@ -11,7 +11,7 @@ from training.checkpoint import CONFIG_FILE, Counters, save_snapshot
 from training.config import Config
 from training.lab.snapshot_curves import EVALUATIONS_FILE
 from training.networks import network_from_config
-from training.train import METRICS_FILE
+from training.seed_state import METRICS_FILE
 
 
 def tiny() -> Config:

@@ -16,7 +16,7 @@ from training.__main__ import main
 from training.checkpoint import read_counters
 from training.config import Config
 from training.stops import StopRequests
-from training.train import METRICS_FILE
+from training.seed_state import METRICS_FILE
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -17,7 +17,7 @@ from training.cli.options import output_option, run_folder, set_threads
 def plot_command(run: Path, output: Path, title: str) -> None:
     """Plot a run's training curves (success rate, return, collision ratio) as a PNG."""
     from training.lab.curves import plot_curves
-    from training.train import METRICS_FILE
+    from training.seed_state import METRICS_FILE
 
     path = plot_curves(run / METRICS_FILE, output, title=title)
     click.echo(f"{path}: training curves of {run}")
@@ -31,7 +31,7 @@ def snapshots_command(run: Path, as_json: bool) -> None:
     and success / travel time / collision ratio on the current stage and the snapshot preset."""
     from training.lab.card import snapshot_table
     from training.lab.curves import read_metrics
-    from training.train import METRICS_FILE
+    from training.seed_state import METRICS_FILE
 
     if not (run / METRICS_FILE).is_file():
         raise click.ClickException(f"{run}: no {METRICS_FILE} (not a training run folder)")
@@ -85,7 +85,7 @@ def curve_command(runs: tuple[Path, ...], presets: tuple[str, ...], episodes: in
     from terl_rt.sim.scenario import Scenario, ScenarioError
     from training.lab.curves import plot_snapshot_curves, stage_starts
     from training.lab.snapshot_curves import picked_snapshot, run_seed, snapshot_curve, with_interval
-    from training.train import METRICS_FILE, snapshot_folder
+    from training.seed_state import METRICS_FILE, snapshot_folder
 
     if pick is not None and pick not in presets:
         presets = (*presets, pick)

@@ -84,7 +84,7 @@ from training.checkpoint import STATE_FILE, export_checkpoint, read_config, read
 from training.config import SECTIONS, Config, ConfigError, read_fields
 from training.lab.start import START_FOLDER, StartError, place_start, seed_start
 from training.run_lock import holding_run_folder
-from training.train import BEST_FOLDER, SeedRun
+from training.seed_state import BEST_FOLDER, SeedRun
 
 SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
 """The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""

@@ -23,7 +23,7 @@ from training.lab.grid import Cell
 from training.lab.recipe import Recipe, continuing, recipe_finished, segment_folder, shipped_checkpoint
 from training.lab.start import START_FOLDER, read_start
 from training.networks import network_from_config
-from training.train import METRICS_FILE
+from training.seed_state import METRICS_FILE
 
 
 def seed_file(folder: Path, cell: Cell) -> Path:

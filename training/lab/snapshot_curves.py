@@ -2,7 +2,7 @@
 
 A run with `keep_snapshots` keeps the network of every snapshot in RUN/snapshots/<step>/. A
 curve evaluates each of them greedy on presets the run itself did not (its snapshots see the
-current stage and one preset), as its snapshots were evaluated (`training.train.greedy_evaluation`:
+current stage and one preset), as its snapshots were evaluated (`training.seed_state.greedy_evaluation`:
 the network in-process, episode k with seed `seed` + k, truncated after `max_steps`). Each
 evaluation is stored beside its network (snapshots/<step>/evaluations.json), so a later call
 evaluates only new snapshots or presets; one the run made itself (a "snapshot" record of its
@@ -22,7 +22,7 @@ from terl_rt.files import atomic_output
 from terl_rt.sim.scenario import Scenario
 from training.checkpoint import STATE_FILE, load_network, read_config
 from training.lab.curves import CurvesError, read_metrics
-from training.train import METRICS_FILE, SNAPSHOTS_FOLDER, greedy_evaluation
+from training.seed_state import METRICS_FILE, SNAPSHOTS_FOLDER, greedy_evaluation
 
 EVALUATIONS_FILE = "evaluations.json"
 """A kept snapshot's stored evaluations, beside its network: a JSON list of records."""

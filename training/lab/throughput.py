@@ -25,11 +25,12 @@ from torch.utils.flop_counter import FlopCounterMode
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import CURRICULUM_STARTS, CURRICULUM_STEPS, Scenario
 from terl_rt.sim.world import World
+from training.acting import TransitionStore, epsilon_greedy
 from training.buffer import ReplayBatch, ReplayBuffer
 from training.config import CURRICULUM_STAGES, Config
 from training.learner import Learner, td_losses
 from training.networks import network_from_config
-from training.train import TransitionStore, buffer_evader_slots, epsilon_greedy
+from training.seed_state import buffer_evader_slots
 
 PLAIN = "one seed (7725bd1)"
 """The name of the one-seed update as main 7725bd1 made it, the baseline of every ratio."""

@@ -2,7 +2,7 @@
 
 Greedy episodes of one scenario: at every step of every active pursuer, the network's
 Q-value of the action it takes against the discounted return that follows, of the rewards
-the learner is taught under the network's own config (`training.train.taught_step`:
+the learner is taught under the network's own config (`training.acting.taught_step`:
 shaping, collision value, scale, what ends a transition). A Q-value far above the returns that
 follow, or uncorrelated with them, is a value function that has not caught up with its
 reward (docs/training-mattered.md, 7: neither the target copies nor the values' level
@@ -19,11 +19,11 @@ import torch
 from terl_rt.sim.rollout import Rollout
 from terl_rt.sim.scenario import Scenario
 from terl_rt.sim.world import World
+from training.acting import explore, taught_step
 from training.buffer import trim_padding
 from training.config import Config
 from training.networks import QNetwork
 from training.torch_policy import as_tensors
-from training.train import explore, taught_step
 
 
 MIN_CORRELATION = 0.5
