@@ -258,13 +258,7 @@ def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Rec
         unknown = sorted(set(link) - set(LINK_KEYS)) if isinstance(link, dict) else []
         if not isinstance(link, dict) or not isinstance(link.get("recipe"), str) or unknown:
             raise RecipeError(f"{where}: a link is a table of {', '.join(LINK_KEYS)} with 'recipe' a path, got {link!r}")
-        link_path = path.parent / link["recipe"]
-        if link_path.resolve() in extending + (path.resolve(),):
-            raise RecipeError(f"{where}: 'recipe' makes a loop through {link_path}")
-        try:
-            part = load_recipe(link_path, extending + (path.resolve(),))
-        except FileNotFoundError:
-            raise RecipeError(f"{where}: 'recipe' names {link_path}, which does not exist") from None
+        link_path, part = _named_recipe(path, link["recipe"], where, "recipe", extending)
         count = link.get("segments", len(part.segments))
         if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= len(part.segments):
             raise RecipeError(f"{where}: 'segments' must be 1-{len(part.segments)} ({link_path} has "
@@ -282,17 +276,23 @@ def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Rec
     return Recipe(path, data["ships"], data.get("ships_from", "best"), tuple(segments), first.from_step)
 
 
+def _named_recipe(path: Path, name: str, where: str, key: str, extending: tuple[Path, ...]) -> tuple[Path, Recipe]:
+    """The recipe file `path` names under `key` (a path from its folder) and that recipe, read;
+    RecipeError (prefixed `where`) for a loop through the recipes being read or a missing file."""
+    named = path.parent / name
+    if named.resolve() in extending + (path.resolve(),):
+        raise RecipeError(f"{where}: '{key}' makes a loop through {named}")
+    try:
+        return named, load_recipe(named, extending + (path.resolve(),))
+    except FileNotFoundError:
+        raise RecipeError(f"{where}: '{key}' names {named}, which does not exist") from None
+
+
 def _extension(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Recipe:
     """The recipe `data` of file `path` describes: its base's segments with its fields in each."""
     if not isinstance(data["extends"], str):
         raise RecipeError(f"{path}: 'extends' must be the path of a recipe, got {data['extends']!r}")
-    base_path = path.parent / data["extends"]
-    if base_path.resolve() in extending + (path.resolve(),):
-        raise RecipeError(f"{path}: 'extends' makes a loop through {base_path}")
-    try:
-        base = load_recipe(base_path, extending + (path.resolve(),))
-    except FileNotFoundError:
-        raise RecipeError(f"{path}: 'extends' names {base_path}, which does not exist") from None
+    base_path, base = _named_recipe(path, data["extends"], str(path), "extends", extending)
     changes = read_fields({section: data[section] for section in SECTIONS if section in data}, source=str(path))
     if "total_steps" in changes:
         raise RecipeError(f"{path}: the steps are the segments' of {base_path}; schedule.total_steps cannot change")

@@ -39,7 +39,7 @@ from terl_rt.policy.contract import (
 from training.adam import one_seed_state_dict
 from training.checkpoint import (
     CONFIG_FILE, META_TRAINING_CONFIG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TARGET_FILE, Counters,
-    TrainingState, load_network, save_checkpoint,
+    TrainingState, load_network, read_counters, save_checkpoint,
 )
 from training.config import Config
 
@@ -121,14 +121,14 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
         if record.get("sha256") != digest:
             raise StartError(f"{folder} holds another start ({record.get('source')}, sha256 {record.get('sha256')}), "
                              f"not {source}: use another --out, or remove {folder}")
-        return Counters(**json.loads((folder / STATE_FILE).read_text())["counters"])
+        return read_counters(folder)
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     if kind == "checkpoint":
         for name in CHECKPOINT_FILES:
             shutil.copyfile(source / name, folder / name)
-        counters = Counters(**json.loads((folder / STATE_FILE).read_text())["counters"])
+        counters = read_counters(folder)
     else:
         if kind == "policy":
             model, config, counters = _policy_weights(source)
