@@ -21,7 +21,7 @@ from terl_rt.evaluation.episodes import RESULTS_SCHEMA
 ROW_KEYS = {
     "name", "episodes", "seed", "max_steps", "success_rate", "travel_time_s_mean", "travel_time_s_std",
     "collision_ratio_mean", "steps_mean", "ci95", "wall_s", "per_episode", "travel_time_s_success_mean",
-    "travel_time_s_limit_mean", "limit_s", "evader",
+    "travel_time_s_limit_mean", "limit_s", "evader", "collisions_touched",
 }
 
 

@@ -18,7 +18,7 @@ from sim_helpers import (
     stack_states,
 )
 
-from terl_rt.sim.collisions import collisions
+from terl_rt.sim.collisions import TOUCHED_EVADER, TOUCHED_OBSTACLE, TOUCHED_TEAMMATE, collisions
 from terl_rt.sim.encirclement import encircle, remember_perceived
 from terl_rt.sim.evader import ConstantEvader
 from terl_rt.sim.params import WorldParams
@@ -40,7 +40,7 @@ def run_encircle(state, params=DEFAULT):
 
 
 def run_collisions(state):
-    return collisions(state, geometry_of(state), DEFAULT)[0].tolist()
+    return collisions(state, geometry_of(state), DEFAULT)[0][0].tolist()
 
 
 # ---------------------------------------------------------------- collisions
@@ -97,6 +97,32 @@ def test_collision_is_checked_after_everyone_moved():
     _, result = world.step(np.array([[7, 7, PURSUER_IDLE, PURSUER_IDLE, PURSUER_IDLE]]))  # 7 = (0.4, 0)
     assert result.collided[0].tolist() == [True, True, False, False, False]
     assert world.state.pursuer_active[0].tolist() == [False, False, True, True, True]
+
+
+def test_a_collision_records_what_the_pursuers_disc_touched():
+    # pursuer 0 touches pursuer 1 and the evader, pursuer 2 an obstacle, pursuer 3 nothing
+    state = make_state([[0.0, 0.0, 0.0, 0.0], [-2 * ROBOT_R, 0.0, 0.0, 0.0], [40.0, 0.0, 0.0, 0.0], [70.0, 0.0, 0.0, 0.0]],
+                       [[2 * ROBOT_R, 0.0, 0.0, 0.0]], [[40.0 + ROBOT_R + 1.0, 0.0, 1.0]])
+    collided, touched = collisions(state, geometry_of(state), DEFAULT)
+    assert collided[0].tolist() == [True, True, True, False]
+    assert touched[0].tolist() == [TOUCHED_TEAMMATE | TOUCHED_EVADER, TOUCHED_TEAMMATE, TOUCHED_OBSTACLE, 0]
+
+
+def test_an_episodes_metrics_count_collided_pursuers_by_what_they_touched():
+    # pursuers 0 and 1 head-on (each touches a teammate); pursuer 2 drives into the evader
+    scenario = initial_scenario(
+        pursuers=[[30.0, 30.0, 0.0, 3.0], [34.0, 30.0, math.pi, 3.0], [60.0, 30.0, 0.0, 2.0], far_row(0), far_row(1),
+                  far_row(2)],
+        evaders=[[62.5, 30.0, math.pi, 2.0]],
+    )
+    world = World(scenario, evader_policy=ConstantEvader(7))
+    world.reset()
+    world.step(np.array([[7, 7, PURSUER_IDLE, PURSUER_IDLE, PURSUER_IDLE, PURSUER_IDLE]]))
+    metrics = world.metrics()
+    assert metrics.pursuers_collided == 3
+    assert metrics.collisions_touched == {"teammate": 2, "evader": 1, "obstacle": 0}
+    world.reset()  # a new episode records afresh
+    assert world.metrics().collisions_touched == {"teammate": 0, "evader": 0, "obstacle": 0}
 
 
 def test_evaders_are_never_deactivated_by_contact():

@@ -104,8 +104,8 @@ def test_eval_json_carries_every_episode_the_step_limit_and_versions(policy):
     assert [e["seed"] for e in row["per_episode"]] == [7, 8, 9]
     for episode in row["per_episode"]:
         assert set(episode) == {
-            "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions", "collision_ratio", "captures",
-            "return",
+            "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions", "collisions_teammate",
+            "collisions_evader", "collisions_obstacle", "collision_ratio", "captures", "return",
         }
         assert episode["outcome"] in ("success", "step_limit", "too_few_pursuers")
     assert set(row["ci95"]) == set(CI_METRICS)

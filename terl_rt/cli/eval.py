@@ -46,7 +46,7 @@ successful episodes and mean collision ratio, each with its bootstrap interval."
 
 CSV_COLUMNS = (
     "scenario", "evader", "episode", "seed", "outcome", "success", "steps", "travel_time_s", "collisions",
-    "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "acting", "shield_overrides",
+    "collisions_teammate", "collisions_evader", "collisions_obstacle", "collision_ratio", "captures", "return", "max_steps", "policy", "policy_sha256", "acting", "shield_overrides",
     "decisions", "terl_rt", "schema",
 )
 """Columns of `terl-rt eval --csv`, one row per episode: `acting` names a run that did not act
@@ -121,7 +121,7 @@ def eval_command(
     the episodes (exact for the success rate, bootstrap with a fixed seed for the means),
     in a table of 100 columns. Episode k of a scenario runs with seed + k, so any episode
     can be run again alone. A progress bar with an ETA goes to stderr. --json prints
-    every episode too (seed, outcome, steps, collisions, captures, return), the step
+    every episode too (seed, outcome, steps, collisions and what they touched, captures, return), the step
     limit, the terl-rt and policy versions and the results' schema version. An existing --log or --csv file is replaced only
     with --force (and never when it is the policy or scenario file); the log at the
     first step. With --backend ray the episodes are Ray tasks (the policy reaches the
@@ -181,6 +181,10 @@ def eval_command(
         click.echo(HEADER)
         for result in results:
             click.echo(_row(result))
+        touched = [(result.label, result.collisions_touched) for result in results if result.collisions_touched]
+        if any(sum(kinds.values()) for _, kinds in touched):
+            click.echo("collided pursuers touched (teammate / evader / obstacle): " + ", ".join(
+                f"{label} {kinds['teammate']} / {kinds['evader']} / {kinds['obstacle']}" for label, kinds in touched))
         if acting.shield is not None:
             click.echo("shield overrides a pursuer-step: " + ", ".join(
                 f"{result.name} {result.shield_overrides_per_decision:.4f}" for result in results))

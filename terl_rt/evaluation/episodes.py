@@ -25,9 +25,10 @@ from terl_rt.sim.evader import DEFAULT_EVADER
 from terl_rt.sim.metrics import EpisodeMetrics, summarize
 from terl_rt.sim.scenario import Scenario, scenario_label
 
-RESULTS_SCHEMA = 2
+RESULTS_SCHEMA = 3
 """Version of the per-episode result fields (`ScenarioResult.episode_rows`, `eval --json`
-and `--csv`): 2 added `return`."""
+and `--csv`): 2 added `return`, 3 what the collided pursuers touched (`collisions_teammate`,
+`collisions_evader`, `collisions_obstacle`)."""
 
 Progress = Callable[[int, EpisodeMetrics], None]
 """Called after each finished episode with its index and metrics (in episode order)."""
@@ -57,6 +58,15 @@ class ScenarioResult:
     acting: Acting = Acting()
     """how the policy acted: greedy (the paper's rule), risk-aware or shielded (terl_rt.safety);
     `acting.label` names a row that did not act greedily."""
+
+    @property
+    def collisions_touched(self) -> dict[str, int] | None:
+        """Collided pursuers over every episode by what they touched ({"teammate", "evader",
+        "obstacle"}: one that touched two kinds counts under each); None where an episode did not record it."""
+        touched = [m.collisions_touched for m in self.per_episode]
+        if not touched or any(kinds is None for kinds in touched):
+            return None
+        return {kind: sum(kinds[kind] for kinds in touched) for kind in touched[0]}
 
     @property
     def shield_overrides_per_decision(self) -> float | None:
@@ -98,8 +108,8 @@ class ScenarioResult:
 
     def episode_rows(self) -> list[dict]:
         """One row per episode (fields of RESULTS_SCHEMA): index, seed, outcome (success,
-        too_few_pursuers or step_limit), steps, travel time, collisions (pursuers),
-        collision ratio, captures (evaders encircled) and return (every pursuer's reward
+        too_few_pursuers or step_limit), steps, travel time, collisions (pursuers) and how
+        many of them touched a teammate, an evader, an obstacle, collision ratio, captures (evaders encircled) and return (every pursuer's reward
         summed over the episode); under the shield also its overrides and the pursuer-steps
         decided."""
         return [
@@ -112,6 +122,9 @@ class ScenarioResult:
                 "travel_time_s": m.travel_time_s,
                 "collisions": m.pursuers_collided,
                 "collision_ratio": m.collision_ratio,
+                "collisions_teammate": m.collisions_teammate,
+                "collisions_evader": m.collisions_evader,
+                "collisions_obstacle": m.collisions_obstacle,
                 "captures": m.evaders_encircled,
                 "return": m.team_return,
                 **({} if m.shield_overrides is None else {"shield_overrides": m.shield_overrides,
@@ -137,6 +150,7 @@ class ScenarioResult:
             "travel_time_s_limit_mean": _number(self.travel_time_s_limit_mean),
             "limit_s": self.limit_s,
             "collision_ratio_mean": self.collision_ratio_mean,
+            "collisions_touched": self.collisions_touched,
             "steps_mean": self.steps_mean,
             "ci95": {name: [_number(bound) for bound in interval] for name, interval in self.ci95().items()},
             "wall_s": self.wall_s,

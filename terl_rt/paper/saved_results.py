@@ -31,8 +31,10 @@ logger = logging.getLogger(__name__)
 SAVED_SCHEMA = 1
 """Version of the saved files' fields: a file of another version is not read."""
 
-_METRIC_FIELDS = frozenset(EpisodeMetrics(False, 0, 0.0, 0.0, 0, 0).to_dict())
-"""The fields a saved episode has: a comparison's episodes run greedy, without the shield's counts."""
+_METRIC_FIELDS = (frozenset(EpisodeMetrics(False, 0, 0.0, 0.0, 0, 0).to_dict()),
+                  frozenset(EpisodeMetrics(False, 0, 0.0, 0.0, 0, 0, None, None, None, 0, 0, 0).to_dict()))
+"""The fields a saved episode has: a comparison's episodes run greedy, without the shield's
+counts; those saved since terl-rt recorded what collisions touched have its counts too."""
 
 
 class SavedResults:
@@ -64,8 +66,8 @@ class SavedResults:
             if data["key"] != key:
                 raise ValueError("it holds another evaluation")
             rows = data["per_episode"]
-            if len(rows) != episodes or any(set(row) != _METRIC_FIELDS for row in rows):
-                raise ValueError(f"expected {episodes} episodes of the fields {sorted(_METRIC_FIELDS)}")
+            if len(rows) != episodes or any(set(row) not in _METRIC_FIELDS for row in rows):
+                raise ValueError(f"expected {episodes} episodes of the fields {sorted(_METRIC_FIELDS[-1])}")
             per_episode = [EpisodeMetrics(**row) for row in rows]
             return scenario_result(scenario, seed, per_episode, float(data["wall_s"]))
         except (OSError, ValueError, KeyError, TypeError) as error:

@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from terl_rt.sim.collisions import TOUCHED_EVADER, TOUCHED_OBSTACLE, TOUCHED_TEAMMATE
 from terl_rt.sim.params import WorldParams
 from terl_rt.sim.state import WorldState
 
@@ -33,13 +34,31 @@ class EpisodeMetrics:
     None for an episode run without the shield."""
     decisions: int | None = None
     """pursuer-steps decided (active pursuers, summed over steps), under the shield; else None."""
+    collisions_teammate: int | None = None
+    """collided pursuers whose disc touched a teammate in the step they collided (one that
+    touched two kinds of entity counts under each); None in metrics read from logs written
+    before terl-rt recorded what collisions touched."""
+    collisions_evader: int | None = None
+    """collided pursuers whose disc touched an evader; None as for collisions_teammate."""
+    collisions_obstacle: int | None = None
+    """collided pursuers whose disc touched an obstacle; None as for collisions_teammate."""
 
     def to_dict(self) -> dict:
-        """The fields by name; the shield's two only for an episode run under it."""
+        """The fields by name; the shield's two only for an episode run under it, what
+        collisions touched only where it was recorded."""
         out = asdict(self)
         if self.shield_overrides is None:
             del out["shield_overrides"], out["decisions"]
+        if self.collisions_teammate is None:
+            del out["collisions_teammate"], out["collisions_evader"], out["collisions_obstacle"]
         return out
+
+    @property
+    def collisions_touched(self) -> dict[str, int] | None:
+        """Collided pursuers by what they touched: {"teammate", "evader", "obstacle"}; None where not recorded."""
+        if self.collisions_teammate is None:
+            return None
+        return {"teammate": self.collisions_teammate, "evader": self.collisions_evader, "obstacle": self.collisions_obstacle}
 
 
 def episode_metrics(state: WorldState, env: int, params: WorldParams, team_return: float | None = None) -> EpisodeMetrics:
@@ -48,6 +67,7 @@ def episode_metrics(state: WorldState, env: int, params: WorldParams, team_retur
     steps = int(state.steps[env])
     collided = int((~state.pursuer_active[env]).sum())
     encircled = int((~state.evader_active[env]).sum())
+    touched = state.pursuer_touched[env]
     return EpisodeMetrics(
         success=bool(not state.evader_active[env].any()),
         steps=steps,
@@ -56,6 +76,9 @@ def episode_metrics(state: WorldState, env: int, params: WorldParams, team_retur
         evaders_encircled=encircled,
         pursuers_collided=collided,
         team_return=team_return,
+        collisions_teammate=int((touched & TOUCHED_TEAMMATE > 0).sum()),
+        collisions_evader=int((touched & TOUCHED_EVADER > 0).sum()),
+        collisions_obstacle=int((touched & TOUCHED_OBSTACLE > 0).sum()),
     )
 
 

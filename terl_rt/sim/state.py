@@ -73,6 +73,10 @@ class WorldState:
     """[B, N, N] bool: [b, i, j] when pursuer i perceived pursuer j in the last step i
     was active in (world.md section 7: a collided pursuer keeps testing encirclements
     with these teammates). Default: all false."""
+    pursuer_touched: np.ndarray | None = _array(np.uint8, logged=False, default=None)
+    """[B, N] uint8: for a collided pursuer, what its disc touched in the step it collided
+    (terl_rt.sim.collisions.TOUCHED_TEAMMATE, _EVADER, _OBSTACLE bits); 0 for the
+    others. Default: all 0."""
 
     def __post_init__(self) -> None:
         num_envs, num_pursuers = self.pursuer_active.shape
@@ -82,6 +86,8 @@ class WorldState:
             self.pursuer_pursuing = np.zeros((num_envs, num_pursuers), bool)
         if self.pursuer_last_seen is None:
             self.pursuer_last_seen = np.zeros((num_envs, num_pursuers, num_pursuers), bool)
+        if self.pursuer_touched is None:
+            self.pursuer_touched = np.zeros((num_envs, num_pursuers), np.uint8)
 
     def copy(self) -> WorldState:
         return WorldState(**{f.name: getattr(self, f.name).copy() for f in dataclasses.fields(self)})

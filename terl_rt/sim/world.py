@@ -271,7 +271,8 @@ class World:
 
         # Collisions. A pursuer that collides in this step still counts and is perceived
         # in everything this step computes from here on (world.md section 6).
-        collided = collisions(state, geometry, p)
+        collided, touched = collisions(state, geometry, p)
+        state.pursuer_touched |= touched
         state.pursuer_active = acted & ~collided
         state.pursuer_perceived = acted
 
