@@ -179,6 +179,24 @@ def test_the_markdown_names_every_seed_and_sets_the_aggregates_beside_the_paper(
     assert "| small | IQN | 0.75 [" in text  # P(TERL better) on success
 
 
+def test_each_seed_is_judged_against_the_papers_goals_as_a_report_judges_one_policy():
+    beyond = scaling_scenario(160).name
+    runs = [made_run("TERL", 1, successes=4, presets=(*PRESETS, beyond)),
+            made_run("IQN", 2, successes=0, travel_s=60.0, collided=10, presets=(*PRESETS, beyond))]
+    text = render_seed_markdown(runs, seed_statistics(runs), "terl-rt report", DATE)
+    section = text[text.index("## Each seed against the paper's goals"):]
+    assert "| method | seed | small | large | CC | 160 pursuers | goals met |" in section
+    # TERL seed 1: every episode encircled in 40 s, none collided: all 9 goals of its 3 groups
+    assert "| TERL | 1 | 1.00 [0.63, 1.00], 40.0 s, 0.000 | 1.00 [0.40, 1.00], 40.0 s, 0.000 " in section
+    assert "| 4/4, 0.000 | 9 of 9 |" in section
+    iqn = next(line for line in section.splitlines() if line.startswith("| IQN | 2 |"))
+    assert iqn.startswith("| IQN | 2 | 0.00 [0.00, 0.37], ") and iqn.endswith("| 0/4, 0.500 | 0 of 9 |")
+    data = seed_comparison_dict(runs, seed_statistics(runs), "terl-rt report", DATE)
+    assert [(row["method"], row["seed"], row["goals_met"], row["goals"]) for row in data["seeds"]] == [
+        ("TERL", 1, 9, 9), ("IQN", 2, 0, 9)]
+    assert data["seeds"][0]["beyond"] == [{"group": "160 pursuers", "successes": 4, "episodes": 4, "collision_ratio": 0.0}]
+
+
 def test_the_comparison_writes_markdown_figure_json_and_the_marl_eval_export(tmp_path):
     pytest.importorskip("matplotlib")
     paths = write_seed_comparison(made_runs(), tmp_path / "docs", "terl-rt report", date=DATE)

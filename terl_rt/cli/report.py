@@ -165,8 +165,10 @@ def report_command(
     over seeds: per method and scale group the mean and interquartile mean over seeds with
     95 % stratified bootstrap intervals and the probability that TERL does better; the
     paper's claims judged on them (reproduces, does not reproduce, or cannot tell where the
-    intervals overlap); a bar figure in the form of Fig. 3; and every episode in marl-eval's
-    JSON format, DIR/comparison-marl-eval.json.
+    intervals overlap); each seed alone against the paper's goals (success with its exact
+    interval, travel time and collision ratio per scale group, goals met, successes past 80
+    pursuers); a bar figure in the form of Fig. 3; and every episode in marl-eval's JSON
+    format, DIR/comparison-marl-eval.json.
 
     A comparison keeps each policy's result on each scenario in DIR/.report-progress as it
     finishes: the same command run again after a cut-off (a session's end, Ctrl-C) reads

@@ -1,5 +1,5 @@
 """The files of a comparison over training seeds: docs/comparison.md (the aggregates, the
-claims, Tables III and IV beside the paper's), comparison.png (the paper's Fig. 3 as bars,
+claims, Tables III and IV beside the paper's, each seed against the paper's goals), comparison.png (the paper's Fig. 3 as bars,
 `terl_rt.paper.seed_figure`), comparison.json (every episode and every statistic) and
 comparison-marl-eval.json (every episode in marl-eval's format, `terl_rt.paper.marl_eval`),
 from the `SeedRun`s and `SeedStatistics` of `terl_rt.paper.seed_comparison`.
@@ -36,6 +36,7 @@ from terl_rt.paper.seed_comparison import (
     seed_statistics,
 )
 from terl_rt.paper.seed_figure import plot_seed_comparison
+from terl_rt.paper.seed_goals import seed_goals, seed_goals_markdown
 from terl_rt.policy.contract import META_TRAINING_STEPS
 
 MARKDOWN_NAME = "comparison.md"
@@ -190,6 +191,7 @@ def render_seed_markdown(
             f"| {_cell(row, 'mean', 'travel_time_s')} | {_cell(row, 'mean', 'travel_time_s_limit')} "
             f"| {_cell(row, 'mean', 'collision_ratio')} | {_cell(row, 'iqm', 'collision_ratio')} |"
         )
+    lines += ["", *seed_goals_markdown(seed_goals(runs))]
     better = stats.improvements
     lines += [
         "",
@@ -230,6 +232,7 @@ def seed_comparison_dict(runs: Sequence[SeedRun], stats: SeedStatistics, command
             for seed_runs in method_runs(runs).values() for run in seed_runs
         ],
         "aggregates": [row.to_dict() for row in stats.aggregates],
+        "seeds": [standing.to_dict() for standing in seed_goals(runs)],
         "improvements": [row.to_dict() for row in stats.improvements],
         "claims": [check.to_dict() for check in stats.claims],
     }
