@@ -1,14 +1,16 @@
 #!/usr/bin/env bash
 # The paired measurement of docs/safety.md ("Measured"): the same seeds with and without the
 # shield, with and without risk-aware acting at three ALPHA, and both; the shipped default and
-# one seed of each comparison method; the paper suite at 100 episodes and 160 / 240 / 400
+# seed 1 of each comparison method; the paper suite at 100 episodes and 160 / 240 / 400
 # pursuers at 10; then the CPU cost per step. From the repository root:
 #
 #   scripts/safety-measurement.sh [OUT]        # OUT default runs/safety; WORKERS default every core
 #
 # Each run is a `terl-rt sweep` into OUT/<policy>/<rule>/<worlds> (sweep.md, sweep.csv and
-# sweep.json, every episode), so a run cut off is repeated alone. Rules: plain, shield,
-# cvar-A and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles).
+# sweep.json, every episode). A run whose sweep.json is there is skipped, so the script run again
+# (in a later session, OUT copied back) goes on where it was cut off. Rules: plain, shield, cvar-A
+# and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles). The default
+# runs first, every rule; the comparison methods after it.
 set -euo pipefail
 out=${1:-runs/safety}
 workers=${WORKERS:-$(nproc)}
@@ -25,6 +27,15 @@ done
 has_quantiles() {
     python3 -c "import sys; from terl_rt.policy.onnx_policy import OnnxPolicy; sys.exit(not OnnxPolicy('$1').has_quantiles)"
 }
+sweep() {  # sweep FOLDER OPTIONS...: one run, unless it finished before
+    local folder=$1
+    shift
+    if [[ -f $folder/sweep.json ]]; then
+        echo "skipped (done): $folder"
+        return
+    fi
+    python3 -m terl_rt sweep "$@" --seed 0 --workers "$workers" --threads 1 --out "$folder" --force
+}
 for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-re,terl-no-ts,iqn,mean,dqn}-seed-1.onnx; do
     name=$(basename "$policy" .onnx)
     for rule in "${rules[@]}"; do
@@ -33,11 +44,10 @@ for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-
         if [[ $label == *cvar* ]] && ! has_quantiles "$policy"; then
             continue
         fi
-        python3 -m terl_rt sweep --policy "$policy" --suite paper --episodes 100 --seed 0 --workers "$workers" \
-            --threads 1 "${options[@]}" --out "$out/$name/$label/paper" --force
+        sweep "$out/$name/$label/paper" --policy "$policy" --suite paper --episodes 100 "${options[@]}"
         for n in 160 240 400; do
-            python3 -m terl_rt sweep --policy "$policy" --scenario-file "$out/scale-$n.json" --episodes 10 --seed 0 \
-                --workers "$workers" --threads 1 "${options[@]}" --out "$out/$name/$label/scale-$n" --force
+            sweep "$out/$name/$label/scale-$n" --policy "$policy" --scenario-file "$out/scale-$n.json" \
+                --episodes 10 "${options[@]}"
         done
     done
 done
