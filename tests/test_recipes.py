@@ -21,9 +21,9 @@ from training.lab.recipe import CARRIED_FIELDS, RecipeError, load_recipe, run_re
 ROOT = Path(__file__).parents[1]
 TINY = ROOT / "tests" / "data" / "tiny-recipe.toml"
 RECIPES = sorted((ROOT / "recipes").rglob("*.toml"))
-NOT_YET_SHIPPED = {"terl-default.toml", "terl-authors-scale.toml"} | {
+NOT_YET_SHIPPED = {
     f"comparison-scale/{method}.toml" for method in ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts")}
-"""Recipes (from recipes/) whose grid is training (issues 74, 77): their seeds ship when it ends."""
+"""Recipes (from recipes/) whose grid is training (issue 77): their seeds ship when it ends."""
 
 
 def sha256(path: Path) -> str:
