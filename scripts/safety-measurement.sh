@@ -18,7 +18,7 @@ mkdir -p "$out"
 python3 -c "
 from terl_rt.evaluation.speed import scaling_scenario
 for n in (160, 240, 400):
-    scaling_scenario(n).to_file('$out/scale-$n.json')
+    scaling_scenario(n).to_file(f'$out/scale-{n}.json')
 "
 rules=("plain:" "shield:--shield")
 for alpha in 0.25 0.5 0.75; do
