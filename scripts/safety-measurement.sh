@@ -10,7 +10,8 @@
 # sweep.json, every episode). A run whose sweep.json is there is skipped, so the script run again
 # (in a later session, OUT copied back) goes on where it was cut off. Rules: plain, shield, cvar-A
 # and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles). The default
-# runs first, every rule; the comparison methods after it.
+# runs first, every rule; the comparison methods after it. Last, OUT/safety-table.md: docs/safety.md's
+# tables (scripts/safety-table.py, which also reads a measurement still going).
 set -euo pipefail
 out=${1:-runs/safety}
 workers=${WORKERS:-$(nproc)}
@@ -53,3 +54,4 @@ for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-
 done
 python3 -m terl_rt bench shield --scenario large-80 --steps 200 --repeat 3 --risk cvar:0.25 --risk cvar:0.5 \
     --risk cvar:0.75 --json > "$out/bench-shield.json"
+python3 scripts/safety-table.py "$out" > "$out/safety-table.md"
