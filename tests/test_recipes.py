@@ -288,6 +288,25 @@ def test_seeds_trained_together_each_continue_their_own_start(tmp_path, tiny_sta
     assert all((tmp_path / "out" / f"seed-{seed}" / "tiny.onnx").is_file() for seed in (1, 2))
 
 
+def test_seeds_from_one_checkpoint_are_runs_of_their_own_and_its_own_seed_goes_on_as_it_was(tmp_path, tiny_start):
+    from training.checkpoint import read_config
+    from training.lab.start import read_start
+
+    own = read_config(tiny_start["checkpoint"]).run.seed
+    other = own + 1
+    out = tmp_path / "out"
+    assert main(["run", str(FINE_TUNE), "--start", str(tiny_start["checkpoint"]), "--seeds", f"{own},{other}",
+                 "--out", str(out), "--quiet"]) == 0
+    states = [json.loads((out / f"seed-{seed}" / "0-start" / "state.json").read_text()) for seed in (own, other)]
+    assert states[0]["rng"] == json.loads((tiny_start["checkpoint"] / "state.json").read_text())["rng"]
+    assert states[1]["rng"] != states[0]["rng"]
+    assert [read_start(out / f"seed-{seed}")["generators"] for seed in (own, other)] == ["the start's", f"seeded by {other}"]
+    recipe = load_recipe(FINE_TUNE)
+    last = [(out / f"seed-{seed}" / f"{len(recipe.segments)}-{recipe.segments[-1].name}" / "model.safetensors").read_bytes()
+            for seed in (own, other)]
+    assert last[0] != last[1]  # not the same run twice
+
+
 def test_a_start_at_another_step_moves_every_step_of_the_recipe():
     recipe = load_recipe(ROOT / "recipes" / "scale-fine-tune.toml")
     assert recipe.from_step == 200_000

@@ -6,7 +6,10 @@ checkpoint that the first segment of a recipe with `from_step` continues (traini
 
 What a start is:
 - a checkpoint folder (state.json with RNG states): copied whole (weights, target, Adam
-  moments, counters, generators; not its replay buffer, which the first segment refills);
+  moments, counters; not its replay buffer, which the first segment refills), with its
+  generators where it ran with the run's seed (a recipe continued from its own first segment
+  goes on as one run would) and generators seeded by the run's seed where it did not (several
+  seeds from one start are several runs, not one run repeated);
 - a snapshot folder (training.checkpoint.save_snapshot: the online network and its counters), or
   a checkpoint folder that kept its online network alone (a committed best/);
 - an exported policy (`.onnx`): its weights read back from the graph (training.onnx_weights),
@@ -39,14 +42,15 @@ from terl_rt.policy.contract import (
 from training.adam import one_seed_state_dict
 from training.checkpoint import (
     CONFIG_FILE, META_TRAINING_CONFIG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TARGET_FILE, Counters,
-    TrainingState, load_network, read_counters, save_checkpoint,
+    TrainingState, load_network, read_config, read_counters, save_checkpoint,
 )
 from training.config import Config
 
 START_FOLDER = "0-start"
 """The folder of a run (or of a seed of it) that holds its start."""
 START_RECORD = "start.json"
-"""What the start came from: {"source", "kind", "sha256", "env_step"}."""
+"""What the start came from: {"source", "kind", "sha256", "env_step", "generators"} ("the start's",
+or "seeded by S": the run's seed S)."""
 CHECKPOINT_FILES = (MODEL_FILE, TARGET_FILE, OPTIMIZER_FILE, CONFIG_FILE, STATE_FILE)
 """A whole checkpoint's files, state.json last (it marks the checkpoint complete)."""
 KINDS = ("checkpoint", "snapshot", "policy")
@@ -125,10 +129,18 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
+    generators = "seeded"
     if kind == "checkpoint":
         for name in CHECKPOINT_FILES:
             shutil.copyfile(source / name, folder / name)
         counters = read_counters(folder)
+        if read_config(folder).run.seed == seed:
+            generators = "the start's"
+        else:
+            state = json.loads((folder / STATE_FILE).read_text())
+            state["rng"] = fresh_rng_states(seed)
+            with atomic_output(folder / STATE_FILE, replace=True) as temporary:
+                temporary.write_text(json.dumps(state))
     else:
         if kind == "policy":
             model, config, counters = _policy_weights(source)
@@ -139,7 +151,8 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
         optimizer = one_seed_state_dict(len(list(model.parameters())), config.learner.learning_rate)
         save_checkpoint(folder, config, TrainingState(weights_now, weights_now, optimizer, counters,
                                                       fresh_rng_states(seed)))
-    record = {"source": str(source), "kind": kind, "sha256": digest, "env_step": counters.env_step}
+    record = {"source": str(source), "kind": kind, "sha256": digest, "env_step": counters.env_step,
+              "generators": generators if generators == "the start's" else f"seeded by {seed}"}
     with atomic_output(record_path, replace=True) as temporary:
         temporary.write_text(json.dumps(record, indent=2) + "\n")
     return counters
