@@ -10,11 +10,13 @@
 # sweep.json, every episode). A run whose sweep.json is there is skipped, so the script run again
 # (in a later session, OUT copied back) goes on where it was cut off. Rules: plain, shield, cvar-A
 # and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles). The default
-# runs first, every rule; the comparison methods after it. Last, OUT/safety-table.md: docs/safety.md's
+# runs first, every rule, then greedy and shielded on held-out episodes (seed 20000, into
+# OUT-held-out/); the comparison methods after it. Last, OUT/safety-table.md: docs/safety.md's
 # tables (scripts/safety-table.py, which also reads a measurement still going).
 set -euo pipefail
 out=${1:-runs/safety}
 workers=${WORKERS:-$(nproc)}
+HELD_OUT_SEED=20000  # episodes 20000-20099: no report, selection or probe uses them
 mkdir -p "$out"
 python3 -c "
 from terl_rt.evaluation.speed import scaling_scenario
@@ -35,7 +37,14 @@ sweep() {  # sweep FOLDER OPTIONS...: one run, unless it finished before
         echo "skipped (done): $folder"
         return
     fi
-    python3 -m terl_rt sweep "$@" --seed 0 --workers "$workers" --threads 1 --out "$folder" --force
+    python3 -m terl_rt sweep --seed 0 "$@" --workers "$workers" --threads 1 --out "$folder" --force
+}
+held_out() {  # the default greedy and shielded on episodes no report uses: OUT-held-out/terl/<rule>/paper
+    for rule in "plain:" "shield:--shield"; do
+        read -r -a options <<< "${rule#*:}"
+        sweep "$out-held-out/terl/${rule%%:*}/paper" --policy exported/terl.onnx --suite paper --episodes 100 \
+            --seed "$HELD_OUT_SEED" "${options[@]}"
+    done
 }
 for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-re,terl-no-ts,iqn,mean,dqn}-seed-1.onnx; do
     name=$(basename "$policy" .onnx)
@@ -51,7 +60,11 @@ for policy in exported/terl.onnx exported/comparison/{terl,terl-authors,terl-no-
                 --episodes 10 "${options[@]}"
         done
     done
+    if [[ $name == terl ]]; then
+        held_out
+    fi
 done
 python3 -m terl_rt bench shield --scenario large-80 --steps 200 --repeat 3 --risk cvar:0.25 --risk cvar:0.5 \
     --risk cvar:0.75 --json > "$out/bench-shield.json"
 python3 scripts/safety-table.py "$out" > "$out/safety-table.md"
+python3 scripts/safety-table.py "$out-held-out" > "$out-held-out/safety-table.md"

@@ -150,6 +150,9 @@ def policy_table(out: Path, policy: str) -> list[str]:
                 f"| {overrides} |"
             )
             missed_all += [f"{group}: {m}" for m in goals_met(group, s, ratio)]
+        if not read[rule]:
+            verdicts.append(f"- {rule}: not measured yet")
+            continue
         complete = all(group in read[rule] for group in GROUPS)
         verdicts.append(f"- {rule}: " + (
             ("meets every goal" if not missed_all else "misses " + "; ".join(missed_all))
