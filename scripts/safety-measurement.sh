@@ -11,7 +11,7 @@
 # (in a later session, OUT copied back) goes on where it was cut off. Rules: plain, shield, cvar-A
 # and shield-cvar-A for A in 0.25 0.5 0.75 (risk only where the file has quantiles). The default
 # runs first, every rule, then greedy and shielded on held-out episodes (seed 20000, into
-# OUT-held-out/); the comparison methods after it. Last, OUT/safety-table.md: docs/safety.md's
+# OUT/held-out/); the comparison methods after it. Last, OUT/safety-table.md: docs/safety.md's
 # tables (scripts/safety-table.py, which also reads a measurement still going).
 set -euo pipefail
 out=${1:-runs/safety}
@@ -39,10 +39,10 @@ sweep() {  # sweep FOLDER OPTIONS...: one run, unless it finished before
     fi
     python3 -m terl_rt sweep --seed 0 "$@" --workers "$workers" --threads 1 --out "$folder" --force
 }
-held_out() {  # the default greedy and shielded on episodes no report uses: OUT-held-out/terl/<rule>/paper
+held_out() {  # the default greedy and shielded on episodes no report uses: OUT/held-out/terl/<rule>/paper
     for rule in "plain:" "shield:--shield"; do
         read -r -a options <<< "${rule#*:}"
-        sweep "$out-held-out/terl/${rule%%:*}/paper" --policy exported/terl.onnx --suite paper --episodes 100 \
+        sweep "$out/held-out/terl/${rule%%:*}/paper" --policy exported/terl.onnx --suite paper --episodes 100 \
             --seed "$HELD_OUT_SEED" "${options[@]}"
     done
 }
@@ -67,4 +67,4 @@ done
 python3 -m terl_rt bench shield --scenario large-80 --steps 200 --repeat 3 --risk cvar:0.25 --risk cvar:0.5 \
     --risk cvar:0.75 --json > "$out/bench-shield.json"
 python3 scripts/safety-table.py "$out" > "$out/safety-table.md"
-python3 scripts/safety-table.py "$out-held-out" > "$out-held-out/safety-table.md"
+python3 scripts/safety-table.py "$out/held-out" > "$out/held-out/safety-table.md"

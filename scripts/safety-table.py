@@ -2,7 +2,8 @@
 
     python scripts/safety-table.py [OUT]         # OUT default runs/safety; markdown on stdout
 
-OUT/<policy>/<rule>/<worlds>/sweep.json, as the measurement script writes them; what is not
+OUT/<policy>/<rule>/<worlds>/sweep.json, as the measurement script writes them (OUT/held-out/ is
+left to a call of its own); what is not
 there yet is left out (a run still going). Per policy and rule and scale group (the paper
 suite's small, medium, large and CC; 160, 240 and 400 pursuers): success with its exact 95 %
 interval, travel time (s, every episode as it ran) and collision ratio with their 95 %
@@ -33,6 +34,8 @@ GROUPS = tuple(group for group in SEED_GROUPS if group != "small (released confi
 """The groups of the table: the paper suite's four, then the three beyond it."""
 DEFAULT = "terl"
 """The folder of the shipped default (exported/terl.onnx)."""
+HELD_OUT = "held-out"
+"""OUT/held-out/: the same layout on held-out episodes, a measurement of its own (its table: OUT/held-out as OUT)."""
 MAX_COLLISION_RATIO = 0.03
 MIN_CC_SUCCESS = 0.95
 MAX_SLOWDOWN = 1.10
@@ -161,7 +164,7 @@ def policy_table(out: Path, policy: str) -> list[str]:
 
 
 def main(out: Path) -> None:
-    policies = sorted((p.name for p in out.iterdir() if p.is_dir()), key=lambda p: (p != DEFAULT, p))
+    policies = sorted((p.name for p in out.iterdir() if p.is_dir() and p.name != HELD_OUT), key=lambda p: (p != DEFAULT, p))
     for policy in policies:
         print("\n".join(policy_table(out, policy)))
 
