@@ -7,8 +7,9 @@ Every cell of GRID_OUT (or those named) replaces its copy under KEPT, with its l
 - a finished cell (its <method>.onnx is there): each segment's config, state and metrics, the
   model, config and state of its best/ snapshot, and the exported file (`python -m training
   grid --ship` ships from these);
-- a cell cut off: all of that and its last segment's weights and optimizer, its resume point
-  (the segments before it are done: their weights are no longer read);
+- a cell cut off: all of that and the weights and optimizer of its last segment that has them,
+  its resume point (a segment just begun has none yet; the segments before are done: their
+  weights are no longer read);
 - either: the networks of its kept snapshots (snapshots/<step>/, `keep_snapshots`: half a MB
   each), which a learning curve evaluates after the run.
 Replay buffers (hundreds of MB; a resumed cell refills its buffer first) and run locks stay
@@ -31,7 +32,9 @@ def keep_cell(cell: Path, kept: Path) -> str:
     finished = any(cell.glob("*.onnx"))
     segments = sorted((p for p in cell.iterdir() if p.is_dir() and p.name.split("-")[0].isdigit()),
                       key=lambda p: int(p.name.split("-")[0]))
-    resumed = None if finished or not segments else segments[-1].name
+    # the resume point: the last segment with weights (one just begun has its log alone)
+    with_weights = [p for p in segments if (p / "model.safetensors").is_file()]
+    resumed = None if finished or not with_weights else with_weights[-1].name
 
     def left_behind(folder: str, names: list[str]) -> set[str]:
         dropped = LEFT_BEHIND & set(names)

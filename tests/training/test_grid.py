@@ -354,6 +354,13 @@ def test_keep_cells_copies_what_ships_of_a_finished_cell_and_the_resume_point_of
                                                                                             "target.safetensors")
     ] + ["2-last-stage/model.safetensors", "2-last-stage/optimizer.pt", "2-last-stage/target.safetensors"])
     assert (tmp_path / "kept" / "iqn" / "seed-2.log").read_text() == "log"
+    # cut off as a segment begins (its log alone): the resume point is the segment before it
+    (tmp_path / "runs" / "iqn" / "seed-2" / "3-large").mkdir()
+    (tmp_path / "runs" / "iqn" / "seed-2" / "3-large" / "metrics.jsonl").write_text("log")
+    done = subprocess.run([sys.executable, str(REPOSITORY / "scripts" / "keep-cells.py"), str(tmp_path / "runs"),
+                           str(tmp_path / "kept"), "iqn/seed-2"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert {"2-last-stage/model.safetensors", "2-last-stage/optimizer.pt", "3-large/metrics.jsonl"} <= set(files("iqn/seed-2"))
 
 
 # ---------------------------------------------------------------- seeds trained together
