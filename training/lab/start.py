@@ -129,7 +129,7 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
-    generators = "seeded"
+    generators = f"seeded by {seed}"
     if kind == "checkpoint":
         for name in CHECKPOINT_FILES:
             shutil.copyfile(source / name, folder / name)
@@ -152,7 +152,7 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
         save_checkpoint(folder, config, TrainingState(weights_now, weights_now, optimizer, counters,
                                                       fresh_rng_states(seed)))
     record = {"source": str(source), "kind": kind, "sha256": digest, "env_step": counters.env_step,
-              "generators": generators if generators == "the start's" else f"seeded by {seed}"}
+              "generators": generators}
     with atomic_output(record_path, replace=True) as temporary:
         temporary.write_text(json.dumps(record, indent=2) + "\n")
     return counters
