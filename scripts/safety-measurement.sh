@@ -40,6 +40,7 @@ sweep() {  # sweep FOLDER OPTIONS...: one run, unless it finished before
     python3 -m terl_rt sweep --seed 0 "$@" --workers "$workers" --threads 1 --out "$folder" --force
 }
 held_out() {  # the default greedy and shielded on episodes no report uses: OUT/held-out/terl/<rule>/paper
+    local rule options  # the caller's loop goes on with its own
     for rule in "${rules[@]:0:2}"; do  # plain and shield
         read -r -a options <<< "${rule#*:}"
         sweep "$out/held-out/terl/${rule%%:*}/paper" --policy exported/terl.onnx --suite paper --episodes 100 \

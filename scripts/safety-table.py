@@ -54,6 +54,14 @@ def episode_metrics(row: dict) -> EpisodeMetrics:
     )
 
 
+def check_acting(rule: str, acting: dict, path: Path) -> None:
+    """Refuse a sweep whose acting is not its folder's rule (plain, shield, cvar-A, shield-cvar-A)."""
+    risk = rule.removeprefix("shield").removeprefix("-")
+    expected_risk = f"cvar:{risk.removeprefix('cvar-')}" if risk.startswith("cvar-") else None
+    if (acting.get("shield") is not None) != rule.startswith("shield") or acting.get("risk") != expected_risk:
+        raise SystemExit(f"{path}: acted as {acting.get('label') or 'greedy'!r}, which is not its folder's rule {rule!r}")
+
+
 def read_rule(folder: Path) -> dict[str, list[tuple[list[EpisodeMetrics], float]]]:
     """group -> [(episodes, step limit in s)] a preset, from the finished sweeps of one policy and rule."""
     groups: dict[str, list[tuple[list[EpisodeMetrics], float]]] = {}
@@ -61,7 +69,9 @@ def read_rule(folder: Path) -> dict[str, list[tuple[list[EpisodeMetrics], float]
         path = folder / worlds / "sweep.json"
         if not path.is_file():
             continue
-        for row in json.loads(path.read_text())["rows"]:
+        sweep = json.loads(path.read_text())
+        check_acting(folder.name, sweep["acting"], path)
+        for row in sweep["rows"]:
             group = group_of(row["name"])
             if group in GROUPS:
                 groups.setdefault(group, []).append(([episode_metrics(e) for e in row["per_episode"]], row["limit_s"]))

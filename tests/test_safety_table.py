@@ -39,3 +39,13 @@ def test_the_table_pairs_each_rule_with_the_greedy_episodes_and_names_the_missed
     # six steps encircle nothing: every rule misses the success goals, and the groups beyond are not there yet
     assert "- plain: misses small: success 0.00; medium: success 0.00 (not every group measured yet)" in table
     assert "- shield: misses small: success 0.00" in table
+
+
+def test_a_sweep_that_did_not_act_by_its_folders_rule_is_refused(tmp_path):
+    policy = write_test_policy(tmp_path / "linear.onnx", seed=0)
+    out = tmp_path / "safety"
+    sweep(policy, out / "terl" / "plain" / "paper")
+    sweep(policy, out / "terl" / "cvar-0.75" / "paper", "--shield")  # the rule a bash loop once left behind
+    run = subprocess.run([sys.executable, str(SCRIPT), str(out)], capture_output=True, text=True)
+    assert run.returncode != 0
+    assert "acted as 'shield 0.5 m / 4 steps', which is not its folder's rule 'cvar-0.75'" in run.stderr
