@@ -22,8 +22,10 @@ ROOT = Path(__file__).parents[1]
 TINY = ROOT / "tests" / "data" / "tiny-recipe.toml"
 RECIPES = sorted((ROOT / "recipes").rglob("*.toml"))
 NOT_YET_SHIPPED = {
-    f"comparison-scale/{method}.toml" for method in ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts")}
-"""Recipes (from recipes/) whose grid is training (issue 77): their seeds ship when it ends."""
+    *(f"comparison-scale/{method}.toml" for method in ("terl", "iqn", "dqn", "mean", "terl-no-re", "terl-no-ts")),
+    "scale-fine-tune-x1.toml",
+}
+"""Recipes (from recipes/) whose runs are training (issues 77 and 74): their seeds ship when they end."""
 
 
 def sha256(path: Path) -> str:
@@ -307,6 +309,40 @@ def test_seeds_from_one_checkpoint_are_runs_of_their_own_and_its_own_seed_goes_o
     assert last[0] != last[1]  # not the same run twice
 
 
+def test_a_recipe_may_bring_its_starts_values_to_its_own_reward_scale(tmp_path, tiny_start):
+    from safetensors.torch import load_file
+
+    from training.checkpoint import read_config
+    from training.lab.start import VALUE_LAYER, read_start
+
+    recipe = tmp_path / "rescaled.toml"  # TINY's start learnt at x 1; its values brought to x 1/20
+    recipe.write_text(f'extends = "{FINE_TUNE}"\nships = "exported/tiny.onnx"\nstart_reward_scale = 0.05\n')
+    out = tmp_path / "out"
+    assert main(["run", str(recipe), "--start", str(tiny_start["checkpoint"]), "--out", str(out), "--quiet",
+                 "--segments", "1"]) == 0
+    assert read_start(out)["values_rescaled"] == pytest.approx(0.05)
+    for name in ("model.safetensors", "target.safetensors"):
+        before, after = load_file(str(tiny_start["checkpoint"] / name)), load_file(str(out / "0-start" / name))
+        for key in before:
+            expected = before[key] * 0.05 if key in VALUE_LAYER else before[key]
+            assert after[key].equal(expected), (name, key)
+    assert read_config(out / "0-start").data.reward_scale == 0.05
+    assert read_config(segment_folder(out, 1, load_recipe(recipe).segments[0])).data.reward_scale == 0.05
+    # the same command again finds the start in place; the start at another scale is refused
+    assert main(["run", str(recipe), "--start", str(tiny_start["checkpoint"]), "--out", str(out), "--quiet",
+                 "--segments", "1"]) == 0
+    recipe.write_text(recipe.read_text().replace("0.05", "0.1"))
+    assert main(["run", str(recipe), "--start", str(tiny_start["checkpoint"]), "--out", str(out), "--quiet"]) == 2
+
+
+@pytest.mark.parametrize("value", ["0", "-1.0", "true", '"x"'])
+def test_a_start_reward_scale_that_is_not_a_scale_is_refused(tmp_path, value):
+    recipe = tmp_path / "rescaled.toml"
+    recipe.write_text(f'extends = "{FINE_TUNE}"\nships = "exported/x.onnx"\nstart_reward_scale = {value}\n')
+    with pytest.raises(RecipeError, match="'start_reward_scale' must be a reward scale above 0"):
+        load_recipe(recipe)
+
+
 def test_a_start_at_another_step_moves_every_step_of_the_recipe():
     recipe = load_recipe(ROOT / "recipes" / "scale-fine-tune.toml")
     assert recipe.from_step == 200_000
@@ -410,10 +446,13 @@ def test_seeds_trained_together_start_from_one_step(tmp_path, tiny_start):
         ('[[chain]]\nrecipe = "base.toml"\nsegments = 3\n', "'segments' must be 1-2"),
         ('[[chain]]\nrecipe = "absent.toml"\n', "'recipe' names"),
         ('[[chain]]\nsegments = 1\n', "a link is a table"),
+        ('[[chain]]\nrecipe = "base.toml"\nsegments = 1\n[[chain]]\nrecipe = "rescaled.toml"\n',
+         "brings its start's values to another scale (start_reward_scale), which a chain does not do"),
     ],
 )
 def test_a_bad_chain_is_refused_naming_the_link(tmp_path, chain, message):
     (tmp_path / "base.toml").write_text(TINY.read_text())
+    (tmp_path / "rescaled.toml").write_text(f'extends = "{FINE_TUNE}"\nships = "exported/x.onnx"\nstart_reward_scale = 1.0\n')
     (tmp_path / "chain.toml").write_text('ships = "exported/x.onnx"\n' + chain)
     with pytest.raises(RecipeError, match=re.escape(message)):
         load_recipe(tmp_path / "chain.toml")

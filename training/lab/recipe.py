@@ -27,7 +27,9 @@ first segment continues the start (`python -m training run RECIPE --start START`
 a snapshot or an exported policy, training.lab.start), and a start at another step shifts every
 step of the recipe (the segments' ends, `decay_start`, the curriculum's `curriculum_steps`) by
 the difference. The start's network (body and sizes) and the scale of the rewards its values
-were learnt in (`reward_scale`) replace the recipe's in every segment (CARRIED_FIELDS):
+were learnt in (`reward_scale`) replace the recipe's in every segment (CARRIED_FIELDS), unless the
+recipe brings the start's values to a scale of its own first (`start_reward_scale = 1.0`: the
+value head's last layer rescaled, training.lab.start.rescale_values):
 
     from_step = 200_000             # recipes/scale-fine-tune.toml: the default's fine-tune at scale
     [[segment]]
@@ -90,7 +92,7 @@ SEGMENT_KEYS = ("name", "steps", "start", "refill", *SECTIONS)
 """The keys a segment may hold: its name, the step it ends at, where it starts, and config parts."""
 STARTS = ("last", "best")
 """What a later segment continues: the previous segment's last checkpoint or its best snapshot."""
-RECIPE_KEYS = ("ships", "ships_from", "from_step", "start", "segment")
+RECIPE_KEYS = ("ships", "ships_from", "from_step", "start", "start_reward_scale", "segment")
 """The top-level keys of a recipe of segments."""
 CHAIN_KEYS = ("ships", "ships_from", "chain")
 """The top-level keys of a recipe that chains others."""
@@ -100,7 +102,7 @@ CARRIED_FIELDS = ("model", "hidden", "layers", "heads", "reward_scale")
 """What a start (or a chain's first recipe) gives every segment that continues it: the network's
 body and sizes, and the scale of the rewards its values were learnt in (docs/training.md, the
 fine-tune at scale: teaching a start's values 20 times its rewards unlearnt it)."""
-EXTENSION_KEYS = ("extends", "ships", "ships_from", "start", *SECTIONS)
+EXTENSION_KEYS = ("extends", "ships", "ships_from", "start", "start_reward_scale", *SECTIONS)
 """The top-level keys of a recipe that extends another."""
 
 
@@ -138,6 +140,9 @@ class Recipe:
     start: str | None = None
     """the start it continues unless the command names one (a path from the recipe's folder,
     "{seed}" standing for each seed's number); None: the command must name it."""
+    start_reward_scale: float | None = None
+    """the reward scale the start's values are brought to before the first segment continues it
+    (training.lab.start.rescale_values), which then carries as the start's; None: the start's own carries."""
 
     def shifted(self, step: int) -> Recipe:
         """The recipe continuing a start at environment step `step`: every step of its segments
@@ -152,9 +157,10 @@ class Recipe:
         ))
 
     def _checked_start(self) -> Recipe:
-        """Itself, or RecipeError for a start in a recipe that starts from nothing."""
-        if self.start is not None and self.from_step is None:
-            raise RecipeError(f"{self.path}: 'start' belongs to a recipe that continues one (with from_step)")
+        """Itself, or RecipeError for a start (or its rescale) in a recipe that starts from nothing."""
+        for key in ("start", "start_reward_scale"):
+            if getattr(self, key) is not None and self.from_step is None:
+                raise RecipeError(f"{self.path}: '{key}' belongs to a recipe that continues a start (with from_step)")
         return self
 
     def carrying(self, start: Config) -> Recipe:
@@ -204,9 +210,15 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     if start is not None and not isinstance(start, str):
         raise RecipeError(f"{path}: 'start' must be the path of a checkpoint, snapshot or .onnx policy, got {start!r}")
     start = None if start is None else os.path.normpath(path.parent / start)
+    start_reward_scale = data.get("start_reward_scale")
+    if start_reward_scale is not None and (isinstance(start_reward_scale, bool)
+                                           or not isinstance(start_reward_scale, (int, float)) or not start_reward_scale > 0):
+        raise RecipeError(f"{path}: 'start_reward_scale' must be a reward scale above 0, got {start_reward_scale!r}")
+    start_reward_scale = None if start_reward_scale is None else float(start_reward_scale)
     if "extends" in data:
         extension = _extension(path, data, _extending)
-        return (extension if start is None else dataclasses.replace(extension, start=start))._checked_start()
+        given = {key: value for key, value in (("start", start), ("start_reward_scale", start_reward_scale)) if value is not None}
+        return dataclasses.replace(extension, **given)._checked_start()
     if "chain" in data:
         return _chain(path, data, _extending)
     from_step = data.get("from_step")
@@ -225,7 +237,7 @@ def load_recipe(path: str | Path, _extending: tuple[Path, ...] = ()) -> Recipe:
     names = [segment.name for segment in segments]
     if len(set(names)) != len(names):
         raise RecipeError(f"{path}: two segments share a name in {names}")
-    return Recipe(path, data["ships"], ships_from, tuple(segments), from_step, start)._checked_start()
+    return Recipe(path, data["ships"], ships_from, tuple(segments), from_step, start, start_reward_scale)._checked_start()
 
 
 def carried_fields(start: Config) -> dict[str, Any]:
@@ -268,6 +280,9 @@ def _chain(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) -> Rec
         else:
             if part.from_step is None:
                 raise RecipeError(f"{where}: {link_path} starts from nothing (no from_step); only the first link may")
+            if part.start_reward_scale is not None:
+                raise RecipeError(f"{where}: {link_path} brings its start's values to another scale "
+                                  "(start_reward_scale), which a chain does not do between links: run it with --start")
             part = part.shifted(segments[-1].config.schedule.total_steps).carrying(segments[-1].config)
         segments.extend(part.segments[:count])
     names = [segment.name for segment in segments]
@@ -304,7 +319,7 @@ def _extension(path: Path, data: dict[str, Any], extending: tuple[Path, ...]) ->
             raise RecipeError(f"{path}: in segment {index} ({segment.name}) of {base_path}: {error}") from None
         segments.append(dataclasses.replace(segment, config=config))
     return Recipe(path, data["ships"], data.get("ships_from", base.ships_from), tuple(segments), base.from_step,
-                  base.start)
+                  base.start, base.start_reward_scale)
 
 
 def _segment(table: dict[str, Any], base: Config, previous: Segment | None, where: str,
@@ -462,7 +477,8 @@ def _placed_start(recipe: Recipe, start: str, folders: dict[int, Path]) -> Recip
     steps = {}
     for number, folder in folders.items():
         try:
-            steps[number] = place_start(seed_start(start, number), folder / START_FOLDER, number).env_step
+            steps[number] = place_start(seed_start(start, number), folder / START_FOLDER, number,
+                                        recipe.start_reward_scale).env_step
         except StartError as error:
             raise RecipeError(f"--start of seed {number}: {error}") from None
     if len(set(steps.values())) > 1:

@@ -18,6 +18,12 @@ A snapshot or a policy holds no target network, optimizer or generators: the tar
 a copy of the online network, Adam starts with no moments, and the generators are seeded by
 the run's seed. Its best snapshot score is not carried (it was measured by another run).
 
+A recipe may bring a start's values to the scale of its own rewards (`start_reward_scale`,
+training.lab.recipe) instead of carrying the start's: the value head's last layer, online and
+target, is multiplied by the new scale over the start's (every quantile is linear in it, so the
+values are the same values in the new units), Adam's moments are dropped (they were of the old
+units' gradients), and the start's config takes the new scale.
+
 The start is written to OUT/0-start/ (OUT/seed-<S>/0-start/ for seeds trained together) with
 start.json beside it (what it came from, its kind and its weights' sha256), so the run names
 its start, the model card reads it, and a rerun of the same command finds it in place.
@@ -42,15 +48,19 @@ from terl_rt.policy.contract import (
 from training.adam import one_seed_state_dict
 from training.checkpoint import (
     CONFIG_FILE, META_TRAINING_CONFIG, MODEL_FILE, OPTIMIZER_FILE, STATE_FILE, TARGET_FILE, Counters,
-    TrainingState, load_network, read_config, read_counters, save_checkpoint,
+    TrainingState, load_checkpoint, load_network, read_config, read_counters, save_checkpoint,
 )
 from training.config import Config
+from training.networks import network_from_config
 
 START_FOLDER = "0-start"
 """The folder of a run (or of a seed of it) that holds its start."""
 START_RECORD = "start.json"
 """What the start came from: {"source", "kind", "sha256", "env_step", "generators"} ("the start's",
-or "seeded by S": the run's seed S)."""
+or "seeded by S": the run's seed S), and "values_rescaled" (the factor) where its values were brought
+to another reward scale."""
+VALUE_LAYER = ("head.out.weight", "head.out.bias")
+"""The value head's last layer: every quantile (and Q-value) is linear in it."""
 CHECKPOINT_FILES = (MODEL_FILE, TARGET_FILE, OPTIMIZER_FILE, CONFIG_FILE, STATE_FILE)
 """A whole checkpoint's files, state.json last (it marks the checkpoint complete)."""
 KINDS = ("checkpoint", "snapshot", "policy")
@@ -113,9 +123,28 @@ def _policy_weights(source: Path) -> tuple[torch.nn.Module, Config, Counters]:
     return model, config, counters
 
 
-def place_start(source: Path, folder: Path, seed: int) -> Counters:
+def rescale_values(folder: Path, reward_scale: float) -> float:
+    """Bring the values of the whole checkpoint in `folder` to rewards taught x `reward_scale`
+    (VALUE_LAYER of the online and target networks times `reward_scale` over the checkpoint's own
+    scale, Adam's moments dropped, the config's scale replaced); returns the factor (1.0: it was
+    at that scale, nothing is written)."""
+    config = read_config(folder)
+    factor = reward_scale / config.data.reward_scale
+    if factor == 1.0:
+        return factor
+    state = load_checkpoint(folder)
+    for weights in (state.online, state.target):
+        for name in VALUE_LAYER:
+            weights[name] = weights[name] * factor
+    optimizer = one_seed_state_dict(len(list(network_from_config(config.network).parameters())), config.learner.learning_rate)
+    save_checkpoint(folder, config.replace(reward_scale=reward_scale), replace(state, optimizer=optimizer))
+    return factor
+
+
+def place_start(source: Path, folder: Path, seed: int, reward_scale: float | None = None) -> Counters:
     """Write the start `source` as a whole checkpoint into `folder` (START_FOLDER of a run) and
-    return its counters; a folder that already holds this start is left as it is."""
+    return its counters; a folder that already holds this start is left as it is. With
+    `reward_scale`, the start's values are brought to that scale (`rescale_values`)."""
     kind = start_kind(source)
     weights = source if kind == "policy" else source / MODEL_FILE
     digest = hashlib.sha256(weights.read_bytes()).hexdigest()
@@ -125,6 +154,9 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
         if record.get("sha256") != digest:
             raise StartError(f"{folder} holds another start ({record.get('source')}, sha256 {record.get('sha256')}), "
                              f"not {source}: use another --out, or remove {folder}")
+        if reward_scale is not None and read_config(folder).data.reward_scale != reward_scale:
+            raise StartError(f"{folder} holds this start with its values at reward scale "
+                             f"{read_config(folder).data.reward_scale}, not {reward_scale}: use another --out, or remove {folder}")
         return read_counters(folder)
     if folder.exists():
         shutil.rmtree(folder)
@@ -153,6 +185,8 @@ def place_start(source: Path, folder: Path, seed: int) -> Counters:
                                                       fresh_rng_states(seed)))
     record = {"source": str(source), "kind": kind, "sha256": digest, "env_step": counters.env_step,
               "generators": generators}
+    if reward_scale is not None and (factor := rescale_values(folder, reward_scale)) != 1.0:
+        record["values_rescaled"] = factor
     with atomic_output(record_path, replace=True) as temporary:
         temporary.write_text(json.dumps(record, indent=2) + "\n")
     return counters
