@@ -121,7 +121,7 @@ def goals_met(group: str, s: dict, ratio: float | None) -> list[str]:
     paper = GOALS.get(group)
     need = MIN_CC_SUCCESS if group == "CC" else 1.0
     if s["success"] < need - 1e-9:
-        missed.append(f"success {s['success']:.2f}")
+        missed.append(f"success {s['success']:.3f}")
     if paper is not None and s["travel"] > paper.max_travel_time_s + 1e-9:
         missed.append(f"travel time {s['travel']:.1f} s")
     if ratio is not None and ratio > MAX_SLOWDOWN + 1e-9:

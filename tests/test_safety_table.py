@@ -37,8 +37,8 @@ def test_the_table_pairs_each_rule_with_the_greedy_episodes_and_names_the_missed
     assert shielded[5] == "1.00 [1.00, 1.00]"  # both run to the 6-step limit: the same travel time
     assert float(shielded[-1].rstrip(" |")) >= 0.0
     # six steps encircle nothing: every rule misses the success goals, and the groups beyond are not there yet
-    assert "- plain: misses small: success 0.00; medium: success 0.00 (not every group measured yet)" in table
-    assert "- shield: misses small: success 0.00" in table
+    assert "- plain: misses small: success 0.000; medium: success 0.000 (not every group measured yet)" in table
+    assert "- shield: misses small: success 0.000" in table
 
 
 def test_a_sweep_that_did_not_act_by_its_folders_rule_is_refused(tmp_path):
