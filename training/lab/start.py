@@ -154,9 +154,10 @@ def place_start(source: Path, folder: Path, seed: int, reward_scale: float | Non
         if record.get("sha256") != digest:
             raise StartError(f"{folder} holds another start ({record.get('source')}, sha256 {record.get('sha256')}), "
                              f"not {source}: use another --out, or remove {folder}")
-        if reward_scale is not None and read_config(folder).data.reward_scale != reward_scale:
-            raise StartError(f"{folder} holds this start with its values at reward scale "
-                             f"{read_config(folder).data.reward_scale}, not {reward_scale}: use another --out, or remove {folder}")
+        placed_scale = read_config(folder).data.reward_scale
+        if reward_scale is not None and placed_scale != reward_scale:
+            raise StartError(f"{folder} holds this start with its values at reward scale {placed_scale}, "
+                             f"not {reward_scale}: use another --out, or remove {folder}")
         return read_counters(folder)
     if folder.exists():
         shutil.rmtree(folder)
